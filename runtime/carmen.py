@@ -1,0 +1,207 @@
+"""CARMEN log reader: ``FLASER``, ``ROBOTLASER1`` and ``ODOM`` lines, plain or gzipped.
+
+Records come back sorted by ``ipc_timestamp`` (Intel's laser timestamps go backwards 631
+times). A malformed line raises :class:`CarmenFormatError` naming the file, the line and the
+field; other message types (PARAM, SYNC, NEFF, RLASER, ...) are skipped.
+
+Formats (from the logs' own headers)::
+
+    ODOM x y theta tv rv accel ipc_timestamp ipc_hostname logger_timestamp
+    FLASER n r1..rn x y theta odom_x odom_y odom_theta ipc_timestamp ipc_hostname logger_timestamp
+    ROBOTLASER1 laser_type start_angle fov angular_res max_range accuracy remission_mode
+                n r1..rn m rem1..remm laser_x laser_y laser_theta robot_x robot_y robot_theta
+                tv rv forward_safety side_safety turn_axis ipc_timestamp ipc_hostname logger_timestamp
+
+``FLASER`` carries no beam geometry: CARMEN's front laser spans 180° from −90°, at 1° for 180
+or 181 beams (0.5° for 360 or 361).
+"""
+
+from __future__ import annotations
+
+import gzip
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from runtime.pose import between
+
+# Readings at or beyond this are "no return" in FLASER logs (Intel uses 81.83, ACES 50.0).
+FLASER_MAX_RANGE = 50.0
+
+
+class CarmenFormatError(ValueError):
+    """A line of a CARMEN log that cannot be read; says where and what."""
+
+    def __init__(self, path, line: int, field_name: str, problem: str):
+        self.path, self.line, self.field = str(path), line, field_name
+        super().__init__(f"{path}:{line}: {field_name}: {problem}")
+
+
+@dataclass
+class LaserRecord:
+    timestamp: float  # ipc_timestamp
+    ranges: np.ndarray
+    angles: np.ndarray  # beam angles in the laser frame (rad)
+    pose: np.ndarray  # the pose the log gives with the scan (robot frame)
+    odometry: np.ndarray  # raw odometry at the scan
+    max_range: float
+    laser_offset: np.ndarray = field(default_factory=lambda: np.zeros(3))  # laser in robot
+    line: int = 0
+
+
+@dataclass
+class OdometryRecord:
+    timestamp: float
+    pose: np.ndarray
+    line: int = 0
+
+
+@dataclass
+class CarmenLog:
+    path: str
+    lasers: list[LaserRecord]
+    odometry: list[OdometryRecord]
+
+    def scan_poses(self) -> np.ndarray:
+        """The poses logged with the scans, ``(N, 3)``."""
+        return np.array([r.pose for r in self.lasers]).reshape(-1, 3)
+
+
+def flaser_angles(n: int) -> np.ndarray:
+    step = math.pi / (2 * (n // 2)) if n > 1 else 0.0
+    return -math.pi / 2 + step * np.arange(n)
+
+
+def _open(path: Path):
+    with open(path, "rb") as f:
+        magic = f.read(2)
+    if magic == b"\x1f\x8b":
+        return gzip.open(path, "rt", encoding="ascii", errors="replace")
+    return open(path, encoding="ascii", errors="replace")
+
+
+class _Fields:
+    """Token cursor that reports the failing field by name."""
+
+    def __init__(self, path, line, tokens):
+        self.path, self.line, self.tokens, self.i = path, line, tokens, 1
+
+    def error(self, name, problem):
+        return CarmenFormatError(self.path, self.line, name, problem)
+
+    def float(self, name):
+        if self.i >= len(self.tokens):
+            raise self.error(name, f"missing (line has only {len(self.tokens)} fields)")
+        tok = self.tokens[self.i]
+        self.i += 1
+        try:
+            v = float(tok)
+        except ValueError:
+            raise self.error(name, f"not a number: {tok!r}") from None
+        if math.isnan(v):
+            raise self.error(name, "NaN")
+        return v
+
+    def count(self, name):
+        v = self.float(name)
+        if v < 0 or v != int(v):
+            raise self.error(name, f"not a count: {self.tokens[self.i - 1]!r}")
+        return int(v)
+
+    def floats(self, name, n):
+        if self.i + n > len(self.tokens):
+            raise self.error(
+                name, f"expected {n} values, line ends after {len(self.tokens) - self.i}"
+            )
+        out = np.empty(n)
+        for k in range(n):
+            out[k] = self.float(f"{name}[{k}]")
+        return out
+
+    def pose(self, name):
+        return np.array([self.float(f"{name}.x"), self.float(f"{name}.y"), self.float(f"{name}.theta")])
+
+    def timestamp(self):
+        # ipc_timestamp ipc_hostname logger_timestamp: the timestamp is third from the end.
+        if len(self.tokens) - self.i != 3:
+            raise self.error(
+                "ipc_timestamp",
+                f"expected 'ipc_timestamp ipc_hostname logger_timestamp' after the data, "
+                f"found {len(self.tokens) - self.i} trailing fields",
+            )
+        return self.float("ipc_timestamp")
+
+
+def _flaser(f: _Fields, max_range: float) -> LaserRecord:
+    n = f.count("num_readings")
+    if n == 0:
+        raise f.error("num_readings", "zero readings")
+    ranges = f.floats("range", n)
+    pose = f.pose("pose")
+    odom = f.pose("odom")
+    t = f.timestamp()
+    return LaserRecord(t, ranges, flaser_angles(n), pose, odom, max_range, line=f.line)
+
+
+def _robotlaser1(f: _Fields) -> LaserRecord:
+    f.float("laser_type")
+    start = f.float("start_angle")
+    fov = f.float("fov")
+    res = f.float("angular_res")
+    max_range = f.float("max_range")
+    f.float("accuracy")
+    f.float("remission_mode")
+    n = f.count("num_readings")
+    if n == 0:
+        raise f.error("num_readings", "zero readings")
+    ranges = f.floats("range", n)
+    m = f.count("num_remissions")
+    f.floats("remission", m)
+    laser = f.pose("laser_pose")
+    robot = f.pose("robot_pose")
+    for name in ("tv", "rv", "forward_safety", "side_safety", "turn_axis"):
+        f.float(name)
+    t = f.timestamp()
+    if not fov > 0:
+        raise f.error("fov", f"must be > 0, got {fov}")
+    angles = start + res * np.arange(n)
+    # The laser's pose relative to the robot, from the two absolute poses (Eq. 2).
+    offset = between(laser, robot)
+    return LaserRecord(t, ranges, angles, robot, robot.copy(), max_range, offset, line=f.line)
+
+
+def _odom(f: _Fields) -> OdometryRecord:
+    pose = f.pose("pose")
+    for name in ("tv", "rv", "accel"):
+        f.float(name)
+    return OdometryRecord(f.timestamp(), pose, line=f.line)
+
+
+def read_carmen(path, max_range: float = FLASER_MAX_RANGE, sort: bool = True) -> CarmenLog:
+    """Read a CARMEN log. ``max_range`` applies to FLASER lines, which do not carry one."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such log file")
+    lasers: list[LaserRecord] = []
+    odometry: list[OdometryRecord] = []
+    with _open(path) as fh:
+        for lineno, text in enumerate(fh, start=1):
+            tokens = text.split()
+            if not tokens or tokens[0].startswith("#"):
+                continue
+            kind = tokens[0]
+            f = _Fields(path, lineno, tokens)
+            if kind == "FLASER":
+                lasers.append(_flaser(f, max_range))
+            elif kind == "ROBOTLASER1":
+                lasers.append(_robotlaser1(f))
+            elif kind == "ODOM":
+                odometry.append(_odom(f))
+    if not lasers:
+        raise CarmenFormatError(path, 0, "FLASER/ROBOTLASER1", "the log has no laser scans")
+    if sort:  # stable: equal timestamps keep file order
+        lasers.sort(key=lambda r: r.timestamp)
+        odometry.sort(key=lambda r: r.timestamp)
+    return CarmenLog(str(path), lasers, odometry)

@@ -1,0 +1,80 @@
+"""Firefly algorithm (Alg. 3, Fister et al. 2013; Eqs. 12–13), as ask/tell kernels.
+
+Parameters (``params``): ``[alpha0, beta0, gamma, alpha_decay]``. Both scale-dependent terms
+are taken in box-normalised coordinates, so Table 1's values mean the same on any box: the
+distance ``r_ij`` of Eq. 13 (with raw metres and radians, ``exp(−γ·r²)`` vanishes over a 4 m
+box and the fireflies never gather) and the random step ``α·ε`` (a fraction of the box width).
+``α`` decays geometrically each iteration (the paper's ``newAlpha()``; 0.97 is usual).
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from runtime.optimizers.workspace import ALPHA, PHASE, clip, end_iteration, offer_best
+from runtime.rng import normal, uniform
+
+ALPHA0, BETA0, GAMMA, ALPHA_DECAY = 0, 1, 2, 3
+N_PARAMS = 4
+DEFAULTS = (0.75, 0.2, 1.0, 0.97)  # Table 1: n = 20, alpha = 0.75, beta0 = 0.2, gamma = 1
+
+
+@njit(cache=True)
+def fa_start(ws):
+    n, dim = ws.pos.shape
+    for i in range(n):
+        for d in range(dim):
+            ws.pos[i, d] = ws.lo[d] + uniform(ws.rng) * (ws.hi[d] - ws.lo[d])
+    ws.scal[ALPHA] = ws.params[ALPHA0]
+    ws.scal[PHASE] = 0.0
+
+
+@njit(cache=True)
+def _move(ws):
+    """Eq. 12: every firefly moves toward every brighter one (lower f is brighter)."""
+    n, dim = ws.pos.shape
+    alpha = ws.scal[ALPHA]
+    beta0, gamma = ws.params[BETA0], ws.params[GAMMA]
+    for i in range(n):
+        moved = False
+        for j in range(n):
+            if ws.val[j] < ws.val[i]:
+                r2 = 0.0  # Eq. 13, squared, in box-normalised coordinates
+                for d in range(dim):
+                    diff = (ws.pos[j, d] - ws.pos[i, d]) / (ws.hi[d] - ws.lo[d])
+                    r2 += diff * diff
+                beta = beta0 * math.exp(-gamma * r2)
+                for d in range(dim):
+                    step = alpha * normal(ws.rng) * (ws.hi[d] - ws.lo[d])
+                    x = ws.pos[i, d] + beta * (ws.pos[j, d] - ws.pos[i, d]) + step
+                    ws.pos[i, d] = clip(x, ws.lo[d], ws.hi[d])
+                moved = True
+        if not moved:  # the brightest walks at random
+            for d in range(dim):
+                x = ws.pos[i, d] + alpha * normal(ws.rng) * (ws.hi[d] - ws.lo[d])
+                ws.pos[i, d] = clip(x, ws.lo[d], ws.hi[d])
+    ws.scal[ALPHA] = alpha * ws.params[ALPHA_DECAY]
+
+
+@njit(cache=True)
+def fa_ask(ws):
+    n, dim = ws.pos.shape
+    if ws.scal[PHASE] != 0.0:
+        _move(ws)
+    for i in range(n):
+        ws.cand_idx[i] = i
+        for d in range(dim):
+            ws.cand[i, d] = ws.pos[i, d]
+    return n
+
+
+@njit(cache=True)
+def fa_tell(ws, m):
+    for i in range(m):
+        ws.val[i] = ws.cand_val[i]
+        offer_best(ws, ws.pos[i], ws.val[i])
+    if ws.scal[PHASE] != 0.0:
+        end_iteration(ws, ws.val)
+    ws.scal[PHASE] = 1.0

@@ -1,0 +1,116 @@
+"""Scans: ranges and beam angles into a fixed-capacity buffer of points in the sensor frame.
+
+Real scanners give any number of beams at uneven angles (an RPLidar rotation) and invalid
+readings (0, at or beyond the maximum range, NaN, inf). These are dropped here, once, so every
+later stage sees only valid points.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def ranges_to_points(ranges, angles, min_range, max_range, out):
+    """Write the valid beams' end points into ``out`` (capacity × 2); return how many.
+
+    A reading is valid when finite and ``min_range < r < max_range``. Beams beyond the
+    buffer's capacity are ignored (the caller sized the buffer for its scanner).
+    """
+    n = 0
+    cap = out.shape[0]
+    for i in range(ranges.shape[0]):
+        r = ranges[i]
+        a = angles[i]
+        if not (math.isfinite(r) and math.isfinite(a)):
+            continue
+        if r <= min_range or r >= max_range:
+            continue
+        if n >= cap:
+            break
+        out[n, 0] = r * math.cos(a)
+        out[n, 1] = r * math.sin(a)
+        n += 1
+    return n
+
+
+class PointScan:
+    """A scan's valid points in its sensor frame, in a buffer allocated once.
+
+    ``points[:count]`` are valid; the rest of the buffer is scratch.
+    """
+
+    def __init__(self, capacity: int = 2048):
+        if capacity < 1:
+            raise ValueError(f"scan capacity must be >= 1, got {capacity}")
+        self.buffer = np.zeros((capacity, 2), dtype=np.float64)
+        self.count = 0
+
+    @property
+    def capacity(self) -> int:
+        return self.buffer.shape[0]
+
+    @property
+    def points(self) -> np.ndarray:
+        return self.buffer[: self.count]
+
+    def set_ranges(self, ranges, angles, min_range: float = 0.0, max_range: float = np.inf):
+        """Fill from ranges (m) and beam angles (rad); raises on input no scanner would send."""
+        ranges = np.asarray(ranges, dtype=np.float64)
+        angles = np.asarray(angles, dtype=np.float64)
+        if ranges.ndim != 1 or angles.ndim != 1:
+            raise ValueError(
+                f"ranges and angles must be 1-D; got shapes {ranges.shape} and {angles.shape}"
+            )
+        if ranges.shape[0] != angles.shape[0]:
+            raise ValueError(
+                f"ranges and angles differ in length: {ranges.shape[0]} ranges, "
+                f"{angles.shape[0]} angles"
+            )
+        if ranges.shape[0] == 0:
+            raise ValueError("empty scan: no beams")
+        if ranges.shape[0] > self.capacity:
+            raise ValueError(
+                f"scan has {ranges.shape[0]} beams but the buffer holds {self.capacity}; "
+                "raise the scan capacity"
+            )
+        self.count = ranges_to_points(ranges, angles, min_range, max_range, self.buffer)
+        if self.count == 0:
+            raise ValueError(
+                f"all {ranges.shape[0]} readings are invalid "
+                f"(need finite ranges in ({min_range}, {max_range}))"
+            )
+        return self
+
+    def set_points(self, points):
+        """Fill from points ``(N, 2)`` already in the sensor frame."""
+        points = np.asarray(points, dtype=np.float64)
+        if points.ndim != 2 or points.shape[1] != 2:
+            raise ValueError(f"points must have shape (N, 2); got {points.shape}")
+        finite = np.all(np.isfinite(points), axis=1)
+        n = int(finite.sum())
+        if n == 0:
+            raise ValueError("empty scan: no finite points")
+        if n > self.capacity:
+            raise ValueError(f"{n} points exceed the scan capacity {self.capacity}")
+        self.buffer[:n] = points[finite]
+        self.count = n
+        return self
+
+    @classmethod
+    def from_ranges(cls, ranges, angles, min_range=0.0, max_range=np.inf, capacity=None):
+        cap = capacity if capacity is not None else max(len(ranges), 1)
+        return cls(cap).set_ranges(ranges, angles, min_range, max_range)
+
+    @classmethod
+    def from_points(cls, points, capacity=None):
+        cap = capacity if capacity is not None else max(len(points), 1)
+        return cls(cap).set_points(points)
+
+
+def beam_angles(count: int, first: float, last: float) -> np.ndarray:
+    """Evenly spaced beam angles from ``first`` to ``last`` inclusive (rad)."""
+    return np.linspace(first, last, count)

@@ -1,0 +1,297 @@
+"""Scan matching by swarm optimisation: ``align_scans`` (Alg. 5, method.md §3).
+
+    reference = matcher.build_reference(previous_scan)      # distance field + local grid
+    result = matcher.align_scans(scan, reference, guess)    # ΔP, λ, which objective won
+
+1. scan-to-scan: minimise Eq. 14 over the search box with the configured swarm;
+2. if λ exceeds the rejection threshold ``μλ + σλ``, fall back to scan-to-map (Eq. 16) on the
+   reference's local occupancy grid, and recompute λ there with Eq. 14 so the two compare;
+3. update the running threshold with λ.
+
+The whole of one alignment runs in one compiled call on buffers allocated at construction.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from runtime.distance_field import N_META, build_distance_field
+from runtime.local_map import build_local_map, robot_square
+from runtime.objectives import KERNELS, scan_to_map_cost, scan_to_scan_error
+from runtime.optimizers import SwarmConfig, SwarmOptimizer, ask, start, tell
+from runtime.optimizers.workspace import BEST_VAL, EVALUATIONS, ITERATION, reset_run
+from runtime.scan import PointScan
+from runtime.threshold import RejectionThreshold
+
+# Layout of the ``settings`` array handed to the compiled kernel.
+(
+    S_KERNEL,
+    S_INV_C2,
+    S_HALF,
+    S_USE_MAP,
+    S_MAX_IT,
+    S_STAG_IT,
+    S_STAG_TOL,
+    S_TARGET,
+    S_MAX_EVALS,
+    S_STRIDE,
+    S_REFINE_EVALS,
+    S_REFINE_X,
+    S_REFINE_Y,
+    S_REFINE_T,
+) = range(14)
+N_SETTINGS = 14
+# Layout of the ``out`` array it fills.
+R_X, R_Y, R_T, R_LAMBDA, R_USED_MAP, R_ITERATIONS, R_EVALUATIONS, R_LAMBDA_SCAN = range(8)
+N_OUT = 8
+
+
+@dataclass(frozen=True)
+class MatcherConfig:
+    """Scan matcher settings; the defaults are what ``swarmslam bench matcher`` measures."""
+
+    swarm: SwarmConfig = field(default_factory=SwarmConfig)
+    resolution: float = 0.05  # m per distance-field / local-grid cell
+    field_radius: float = 0.5  # m: distances are exact below, truncated above
+    kernel: str = "paper"  # "paper": Eq. 14; "cauchy": per-point log(1 + d²/c²)
+    cauchy_scale: float = 0.1  # m, c of the Cauchy kernel
+    stride: int = 1  # global stage uses every stride-th point
+    refine_evaluations: int = 0  # budget of the local stage (0: none)
+    refine_window: tuple[float, float, float] = (0.1, 0.1, 0.05)  # its half-widths
+    search_window: tuple[float, float, float] = (2.0, 2.0, 1.6)  # half-widths, no guess
+    guess_window: tuple[float, float, float] = (0.3, 0.3, 0.3)  # half-widths around a guess
+    grid_cells: int = 1024  # capacity per side of the reference grids
+    scan_to_map: bool = True  # Alg. 5's fallback
+    robot_diameter: float = 0.35  # m, for Eq. 17
+    occupied_radius: float = 0.1  # m, ramp around obstacles in the local grid
+
+    def __post_init__(self):
+        if self.kernel not in KERNELS:
+            raise ValueError(f"unknown kernel {self.kernel!r}; choose one of {sorted(KERNELS)}")
+        for name in ("resolution", "field_radius", "cauchy_scale", "occupied_radius"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if self.stride < 1 or self.refine_evaluations < 0:
+            raise ValueError("stride must be >= 1 and refine_evaluations >= 0")
+        for name in ("search_window", "guess_window", "refine_window"):
+            w = getattr(self, name)
+            if len(w) != 3 or not all(v > 0 for v in w):
+                raise ValueError(f"{name} needs three half-widths > 0, got {w}")
+        if self.grid_cells < 8:
+            raise ValueError(f"grid_cells must be >= 8, got {self.grid_cells}")
+
+
+class ReferenceMaps:
+    """A reference scan rendered for matching: its distance field and local occupancy grid."""
+
+    def __init__(self, cells: int):
+        self.field = np.zeros((cells, cells), dtype=np.float32)
+        self.grid = np.zeros((cells, cells), dtype=np.uint8)
+        self.meta = np.zeros(N_META, dtype=np.float64)
+        self.ready = False
+
+
+@dataclass(frozen=True)
+class MatchResult:
+    pose: np.ndarray  # ΔP: the current scan's pose in the reference scan's frame
+    error: float  # λ, Eq. 14 at ΔP
+    scan_error: float  # λ of the scan-to-scan stage alone
+    used_map: bool  # the scan-to-map fallback was taken
+    iterations: int
+    evaluations: int
+
+
+@njit(cache=True)
+def _minimise(kind, ws, settings, mode, pts, n, stride, field, grid, meta, budget):
+    """Run the swarm from scratch over ``ws.lo``–``ws.hi`` on Eq. 14 (mode 0) or Eq. 16 (1)."""
+    kernel = int(settings[S_KERNEL])
+    inv_c2 = settings[S_INV_C2]
+    half = int(settings[S_HALF])
+    reset_run(
+        ws,
+        settings[S_MAX_IT],
+        settings[S_STAG_IT],
+        settings[S_STAG_TOL],
+        settings[S_TARGET],
+        budget,
+    )
+    start(kind, ws)
+    while True:
+        m = ask(kind, ws)
+        for r in range(m):
+            x = ws.cand[r, 0]
+            y = ws.cand[r, 1]
+            t = ws.cand[r, 2]
+            if mode == 0:
+                ws.cand_val[r] = scan_to_scan_error(
+                    field, meta, pts, n, stride, x, y, t, kernel, inv_c2
+                )
+            else:
+                ws.cand_val[r] = scan_to_map_cost(grid, meta, pts, n, x, y, t, half)
+        if tell(kind, ws, m):
+            return
+
+
+@njit(cache=True)
+def _lambda(settings, field, meta, pts, n, x, y, t):
+    """λ: Eq. 14 over all points, the one measure every stage is compared by."""
+    return scan_to_scan_error(
+        field, meta, pts, n, 1, x, y, t, int(settings[S_KERNEL]), settings[S_INV_C2]
+    )
+
+
+@njit(cache=True)
+def _take(ws, out, lam):
+    """Keep the swarm's best in ``out`` if its λ improves on what is there."""
+    out[R_ITERATIONS] += ws.scal[ITERATION]
+    out[R_EVALUATIONS] += ws.scal[EVALUATIONS]
+    if lam < out[R_LAMBDA]:
+        out[R_X] = ws.best[0]
+        out[R_Y] = ws.best[1]
+        out[R_T] = ws.best[2]
+        out[R_LAMBDA] = lam
+        return True
+    return False
+
+
+@njit(cache=True)
+def _set_box(ws, lo, hi):
+    for d in range(3):
+        ws.lo[d] = lo[d]
+        ws.hi[d] = hi[d]
+
+
+@njit(cache=True)
+def align_kernel(kind, ws, pts, n, field, grid, meta, settings, box, threshold, out):
+    """Alg. 5 on preallocated buffers; ``box`` is the search box ``[[lo], [hi]]``."""
+    out[:] = 0.0
+    out[R_LAMBDA] = np.inf
+    # 1. Scan-to-scan over the whole box (Eq. 14), on a stride of the points for speed ...
+    stride = int(settings[S_STRIDE])
+    _set_box(ws, box[0], box[1])
+    _minimise(kind, ws, settings, 0, pts, n, stride, field, grid, meta, settings[S_MAX_EVALS])
+    _take(ws, out, _lambda(settings, field, meta, pts, n, ws.best[0], ws.best[1], ws.best[2]))
+    # ... then polished by the same swarm on all points in a small box around the result.
+    if settings[S_REFINE_EVALS] > 0:
+        for d in range(3):
+            w = settings[S_REFINE_X + d]
+            ws.lo[d] = out[R_X + d] - w
+            ws.hi[d] = out[R_X + d] + w
+        _minimise(kind, ws, settings, 0, pts, n, 1, field, grid, meta, settings[S_REFINE_EVALS])
+        _take(ws, out, ws.scal[BEST_VAL])
+    out[R_LAMBDA_SCAN] = out[R_LAMBDA]
+
+    # 2. Above the rejection threshold, fall back to scan-to-map (Eq. 16) over the same box.
+    # The fallback is kept only where λ (Eq. 14) agrees it overlays the scans better: λ is
+    # the one measure both stages share, and a map match that fits worse is no rescue.
+    if settings[S_USE_MAP] != 0.0 and out[R_LAMBDA] > threshold:
+        _set_box(ws, box[0], box[1])
+        _minimise(kind, ws, settings, 1, pts, n, 1, field, grid, meta, settings[S_MAX_EVALS])
+        lam = _lambda(settings, field, meta, pts, n, ws.best[0], ws.best[1], ws.best[2])
+        if _take(ws, out, lam):
+            out[R_USED_MAP] = 1.0
+
+
+class ScanMatcher:
+    """Aligns scans with a swarm optimizer (Alg. 5); one instance per stream of scans."""
+
+    def __init__(self, config: MatcherConfig | None = None, seed: int = 0):
+        self.config = config or MatcherConfig()
+        c = self.config
+        self.optimizer = SwarmOptimizer(c.swarm, dim=3, seed=seed)
+        self.threshold = RejectionThreshold()
+        self._default_reference = ReferenceMaps(c.grid_cells)
+        self._window = np.asarray(c.search_window, dtype=np.float64)
+        self._guess_window = np.asarray(c.guess_window, dtype=np.float64)
+        rho = robot_square(c.robot_diameter, c.resolution)
+        s = np.zeros(N_SETTINGS)
+        s[S_KERNEL] = KERNELS[c.kernel]
+        s[S_INV_C2] = 1.0 / (c.cauchy_scale * c.cauchy_scale)
+        s[S_HALF] = rho // 2 + 1
+        s[S_USE_MAP] = 1.0 if c.scan_to_map else 0.0
+        sw = c.swarm
+        s[S_MAX_IT] = sw.max_iterations
+        s[S_STAG_IT] = sw.stagnation_iterations
+        s[S_STAG_TOL] = sw.stagnation_tol
+        s[S_TARGET] = sw.target_value
+        s[S_MAX_EVALS] = sw.max_evaluations
+        s[S_STRIDE] = c.stride
+        s[S_REFINE_EVALS] = c.refine_evaluations
+        s[S_REFINE_X : S_REFINE_T + 1] = c.refine_window
+        self.settings = s
+        self._out = np.zeros(N_OUT)
+        self._box = np.zeros((2, 3))
+
+    def new_reference(self) -> ReferenceMaps:
+        """A reference buffer of this matcher's capacity (allocate at start-up, then reuse)."""
+        return ReferenceMaps(self.config.grid_cells)
+
+    def build_reference(self, scan: PointScan, out: ReferenceMaps | None = None) -> ReferenceMaps:
+        """Render a reference scan's distance field (Eq. 14) and local grid (Eq. 16)."""
+        if scan.count == 0:
+            raise ValueError("reference scan is empty")
+        ref = self._default_reference if out is None else out
+        c = self.config
+        build_distance_field(
+            scan.buffer, scan.count, c.resolution, c.field_radius, ref.field, ref.meta
+        )
+        if c.scan_to_map:
+            build_local_map(
+                scan.buffer, scan.count, ref.field, ref.meta, c.occupied_radius, ref.grid
+            )
+        ref.ready = True
+        return ref
+
+    def set_search_box(self, guess=None) -> None:
+        """Centre the search box on ``guess`` (e.g. odometry), else on no motion."""
+        lo, hi = self._box[0], self._box[1]
+        if guess is None:
+            for d in range(3):
+                lo[d] = -self._window[d]
+                hi[d] = self._window[d]
+        else:
+            for d in range(3):
+                g = float(guess[d])
+                if not math.isfinite(g):
+                    raise ValueError(f"initial guess has a non-finite component: {guess}")
+                lo[d] = g - self._guess_window[d]
+                hi[d] = g + self._guess_window[d]
+
+    def align_into(self, scan: PointScan, reference: ReferenceMaps, guess, out) -> None:
+        """Allocation-free Alg. 5: fills ``out`` (see ``R_*``) and updates the threshold."""
+        if scan.count == 0:
+            raise ValueError("current scan is empty")
+        if not reference.ready:
+            raise ValueError("reference maps were never built (call build_reference first)")
+        self.set_search_box(guess)
+        align_kernel(
+            self.optimizer.kind,
+            self.optimizer.ws,
+            scan.buffer,
+            scan.count,
+            reference.field,
+            reference.grid,
+            reference.meta,
+            self.settings,
+            self._box,
+            self.threshold.rejection_threshold,
+            out,
+        )
+        self.threshold.update(out[R_LAMBDA])
+
+    def align_scans(self, scan: PointScan, reference: ReferenceMaps, guess=None) -> MatchResult:
+        """Alg. 5: the pose of ``scan`` in ``reference``'s frame, and its error λ."""
+        out = self._out
+        self.align_into(scan, reference, guess, out)
+        return MatchResult(
+            pose=out[R_X : R_T + 1].copy(),
+            error=float(out[R_LAMBDA]),
+            scan_error=float(out[R_LAMBDA_SCAN]),
+            used_map=bool(out[R_USED_MAP]),
+            iterations=int(out[R_ITERATIONS]),
+            evaluations=int(out[R_EVALUATIONS]),
+        )

@@ -1,0 +1,122 @@
+"""The three swarm optimizers: standard test functions, bounds, halting, determinism."""
+
+import numpy as np
+import pytest
+
+from runtime.optimizers import SwarmConfig, SwarmOptimizer
+
+OPTIMIZERS = ["pso", "abc", "fa"]
+
+
+def sphere(x):
+    return np.sum((x - np.array([0.3, -1.2, 0.7])[: x.shape[1]]) ** 2, axis=1)
+
+
+def rastrigin(x):
+    return 10 * x.shape[1] + np.sum(x**2 - 10 * np.cos(2 * np.pi * x), axis=1)
+
+
+def rosenbrock(x):
+    return np.sum(100 * (x[:, 1:] - x[:, :-1] ** 2) ** 2 + (1 - x[:, :-1]) ** 2, axis=1)
+
+
+@pytest.mark.parametrize("name", OPTIMIZERS)
+def test_sphere_minimum_found(name):
+    opt = SwarmOptimizer(SwarmConfig(optimizer=name), dim=3, seed=1)
+    r = opt.minimize(sphere, [-5] * 3, [5] * 3)
+    assert np.allclose(r.x, [0.3, -1.2, 0.7], atol=0.02)
+    assert r.value < 1e-3
+
+
+@pytest.mark.parametrize("name", OPTIMIZERS)
+def test_rastrigin_global_minimum_found(name):
+    # Multimodal: many local minima one unit apart; the global one is at the origin.
+    opt = SwarmOptimizer(SwarmConfig(optimizer=name), dim=2, seed=2)
+    r = opt.minimize(rastrigin, [-5.12] * 2, [5.12] * 2)
+    assert np.allclose(r.x, 0.0, atol=0.05), r
+
+
+@pytest.mark.parametrize("name", OPTIMIZERS)
+def test_rosenbrock_valley_followed(name):
+    opt = SwarmOptimizer(SwarmConfig(optimizer=name), dim=2, seed=3)
+    r = opt.minimize(rosenbrock, [-2] * 2, [2] * 2)
+    assert np.allclose(r.x, 1.0, atol=0.15), r
+    assert r.value < 0.02
+
+
+@pytest.mark.parametrize("name", OPTIMIZERS)
+def test_candidates_stay_in_box(name):
+    lo, hi = np.array([1.0, -3.0]), np.array([2.0, -2.5])
+    seen = []
+
+    def f(x):
+        seen.append(x.copy())
+        return np.sum(x**2, axis=1)  # minimum outside the box, pulls members to its edge
+
+    r = SwarmOptimizer(SwarmConfig(optimizer=name), dim=2, seed=4).minimize(f, lo, hi)
+    allx = np.concatenate(seen)
+    assert np.all(allx >= lo) and np.all(allx <= hi)
+    assert np.allclose(r.x, [1.0, -2.5], atol=0.01)
+
+
+@pytest.mark.parametrize("name", OPTIMIZERS)
+def test_same_seed_same_result_bit_for_bit(name):
+    a = SwarmOptimizer(SwarmConfig(optimizer=name), dim=2, seed=9).minimize(
+        rastrigin, [-5] * 2, [5] * 2
+    )
+    b = SwarmOptimizer(SwarmConfig(optimizer=name), dim=2, seed=9).minimize(
+        rastrigin, [-5] * 2, [5] * 2
+    )
+    c = SwarmOptimizer(SwarmConfig(optimizer=name), dim=2, seed=10).minimize(
+        rastrigin, [-5] * 2, [5] * 2
+    )
+    assert a.x.tobytes() == b.x.tobytes() and a.value == b.value
+    assert a.iterations == b.iterations and a.evaluations == b.evaluations
+    assert a.x.tobytes() != c.x.tobytes()
+
+
+@pytest.mark.parametrize("name", OPTIMIZERS)
+def test_target_value_halts_at_once(name):
+    cfg = SwarmConfig(optimizer=name, target_value=1.0)
+    r = SwarmOptimizer(cfg, dim=2, seed=0).minimize(sphere, [-5] * 2, [5] * 2)
+    assert r.value < 1.0
+    assert r.iterations < 50  # far from the 1000-iteration cap or a 50-iteration stagnation
+
+
+@pytest.mark.parametrize("name", OPTIMIZERS)
+def test_stagnation_halts_on_a_flat_function(name):
+    flat = lambda x: np.full(x.shape[0], 3.0)  # noqa: E731 - spread never changes
+    r = SwarmOptimizer(SwarmConfig(optimizer=name), dim=2, seed=0).minimize(flat, [0, 0], [1, 1])
+    # The first iteration has no earlier spread to compare with: 50 unchanged changes take 51.
+    assert r.iterations == 51
+
+
+@pytest.mark.parametrize("name", OPTIMIZERS)
+def test_iteration_and_evaluation_limits(name):
+    r = SwarmOptimizer(SwarmConfig(optimizer=name, max_iterations=7), dim=2).minimize(
+        rastrigin, [-5] * 2, [5] * 2
+    )
+    assert r.iterations == 7
+    r = SwarmOptimizer(SwarmConfig(optimizer=name, max_evaluations=300), dim=2).minimize(
+        rastrigin, [-5] * 2, [5] * 2
+    )
+    assert 300 <= r.evaluations <= 300 + 60  # stops at the end of the iteration reaching it
+
+
+def test_table1_defaults():
+    assert SwarmOptimizer(SwarmConfig(optimizer="pso")).ws.pos.shape == (50, 3)
+    assert SwarmOptimizer(SwarmConfig(optimizer="abc")).ws.pos.shape == (10, 3)  # 20 bees
+    assert SwarmOptimizer(SwarmConfig(optimizer="fa")).ws.pos.shape == (20, 3)
+    assert list(SwarmOptimizer(SwarmConfig(optimizer="pso")).ws.params) == [0.7, 1.49, 1.49, 0.5]
+
+
+def test_bad_configuration_is_named():
+    with pytest.raises(ValueError, match="unknown optimizer 'gwo'"):
+        SwarmOptimizer(SwarmConfig(optimizer="gwo"))
+    with pytest.raises(ValueError, match="takes 4 parameters"):
+        SwarmOptimizer(SwarmConfig(optimizer="pso", params=(0.7,)))
+    opt = SwarmOptimizer(dim=2)
+    with pytest.raises(ValueError, match="lo < hi"):
+        opt.minimize(sphere, [1, 1], [0, 2])
+    with pytest.raises(ValueError, match=r"shape \(10,\)"):
+        opt.minimize(lambda x: np.zeros(3), [0, 0], [1, 1])
