@@ -5,6 +5,12 @@ nearest neighbour in the reference scan. A k-d tree query per point per candidat
 makes naive swarm matchers slow (method.md §3). Instead the squared distance is precomputed on a
 grid around the reference scan and read back by bilinear interpolation.
 
+Nearest neighbours are taken on the reference *surface*: consecutive end points closer than
+``max_gap`` are joined by a segment (as PLICP does), and a point's distance is to the nearest
+segment or isolated point. With bare points, a robot standing still in a corridor is where every
+beam lands exactly on last scan's beam, so the objective prefers "no motion" whatever the true
+motion along the corridor was: half the ACES keyframe failures were that.
+
 Building must cost less than a match, so the field is *truncated*: each reference point writes
 the exact squared distance into the cells within ``radius`` of it, and every other cell holds
 ``radius²``. With ``radius`` at least the largest nearest-neighbour distance that matters this
@@ -25,7 +31,7 @@ import numpy as np
 from numba import njit
 
 # Layout of the ``meta`` array describing the used part of a grid.
-OX, OY, INV_RES, NX, NY, R2, RES = 0, 1, 2, 3, 4, 5, 6
+OX, OY, INV_RES, NX, NY, R2, RES = 0, 1, 2, 3, 4, 5, 6  # R2: cost beyond the radius
 N_META = 7
 
 
@@ -64,8 +70,15 @@ def fit_window(pts, n, res, margin, cap_x, cap_y, meta):
 
 
 @njit(cache=True)
-def build_distance_field(pts, n, res, radius, field, meta):
-    """Truncated squared distance to the nearest of ``pts[:n]`` at every grid node."""
+def build_distance_field(pts, n, res, radius, max_gap, inv_c2, field, meta):
+    """Per-point cost of the nearest reference surface through ``pts[:n]``, at every node.
+
+    ``pts`` are in scan order; neighbours closer than ``max_gap`` are joined (0: points only).
+    The cost is the truncated squared distance ``d²`` (``inv_c2 == 0``, Eq. 14's summand) or
+    the Cauchy kernel ``log(1 + d²/c²)`` with ``inv_c2 = 1/c²``. Both are monotonic in ``d²``,
+    so the minimum over surfaces can be taken on either; baking the kernel in here costs one
+    pass at build time instead of a logarithm per point per candidate pose.
+    """
     fit_window(pts, n, res, radius, field.shape[1], field.shape[0], meta)
     r2 = radius * radius
     meta[R2] = r2
@@ -76,32 +89,73 @@ def build_distance_field(pts, n, res, radius, field, meta):
     for i in range(ny):
         for j in range(nx):
             field[i, j] = r2
-    reach = int(math.ceil(radius / res))
+    gap2 = max_gap * max_gap
     for p in range(n):
-        px = pts[p, 0]
-        py = pts[p, 1]
-        cj = int(round((px - ox) / res))
-        ci = int(round((py - oy) / res))
-        for i in range(max(ci - reach, 0), min(ci + reach + 1, ny)):
-            dy = oy + i * res - py
-            for j in range(max(cj - reach, 0), min(cj + reach + 1, nx)):
-                dx = ox + j * res - px
-                d2 = dx * dx + dy * dy
-                if d2 < field[i, j]:
-                    field[i, j] = d2
+        ax = pts[p, 0]
+        ay = pts[p, 1]
+        bx = ax
+        by = ay
+        if p + 1 < n:
+            dx = pts[p + 1, 0] - ax
+            dy = pts[p + 1, 1] - ay
+            if dx * dx + dy * dy < gap2:
+                bx = pts[p + 1, 0]
+                by = pts[p + 1, 1]
+        _splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field)
+    if inv_c2 > 0.0:
+        far = math.log1p(r2 * inv_c2)
+        meta[R2] = far
+        for i in range(ny):
+            for j in range(nx):
+                v = field[i, j]
+                # Most cells are beyond the radius: one constant, no logarithm.
+                field[i, j] = math.log1p(v * inv_c2) if v < r2 else far
+
+
+@njit(cache=True)
+def _splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field):
+    """Lower every node within ``radius`` of segment a–b to its squared distance from it."""
+    ux = bx - ax
+    uy = by - ay
+    uu = ux * ux + uy * uy
+    j0 = max(int(math.floor((min(ax, bx) - radius - ox) / res)), 0)
+    j1 = min(int(math.ceil((max(ax, bx) + radius - ox) / res)), nx - 1)
+    i0 = max(int(math.floor((min(ay, by) - radius - oy) / res)), 0)
+    i1 = min(int(math.ceil((max(ay, by) + radius - oy) / res)), ny - 1)
+    for i in range(i0, i1 + 1):
+        cy = oy + i * res
+        for j in range(j0, j1 + 1):
+            cx = ox + j * res
+            t = 0.0
+            if uu > 0.0:
+                t = ((cx - ax) * ux + (cy - ay) * uy) / uu
+                t = 0.0 if t < 0.0 else (1.0 if t > 1.0 else t)
+            dx = ax + t * ux - cx
+            dy = ay + t * uy - cy
+            d2 = dx * dx + dy * dy
+            if d2 < field[i, j]:
+                field[i, j] = d2
+
+
+@njit(cache=True, inline="always")
+def lookup_grid(field, gx, gy, last_x, last_y, far):
+    """Bilinear cost at grid coordinates ``(gx, gy)``; ``far`` outside ``[0, last)``."""
+    j = int(math.floor(gx))
+    i = int(math.floor(gy))
+    if j < 0 or i < 0 or j >= last_x or i >= last_y:
+        return far
+    fx = gx - j
+    fy = gy - i
+    a = field[i, j]
+    b = field[i, j + 1]
+    c = field[i + 1, j]
+    d = field[i + 1, j + 1]
+    return a + (b - a) * fx + (c - a) * fy + (a - b - c + d) * fx * fy
 
 
 @njit(cache=True, inline="always")
 def field_lookup(field, meta, x, y):
-    """Bilinear squared distance at ``(x, y)``; ``radius²`` outside the window."""
+    """Bilinear per-point cost at ``(x, y)``; the truncation cost outside the window."""
     gx = (x - meta[OX]) * meta[INV_RES]
     gy = (y - meta[OY]) * meta[INV_RES]
-    if not (gx >= 0.0 and gy >= 0.0 and gx < meta[NX] - 1.0 and gy < meta[NY] - 1.0):
-        return meta[R2]
-    j = int(gx)
-    i = int(gy)
-    fx = gx - j
-    fy = gy - i
-    top = (1.0 - fx) * field[i, j] + fx * field[i, j + 1]
-    bottom = (1.0 - fx) * field[i + 1, j] + fx * field[i + 1, j + 1]
-    return (1.0 - fy) * top + fy * bottom
+    return lookup_grid(field, gx, gy, int(meta[NX]) - 1, int(meta[NY]) - 1, meta[R2])

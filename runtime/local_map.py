@@ -3,7 +3,7 @@
 Convention as in the paper: uint8, 0 = certainly occupied, 255 = certainly free, 128 unknown,
 linear in between. Cells along each beam are free; cells within ``occupied_radius`` of a beam
 end ramp linearly from 0 at the end point to 255 at the radius (read from the distance field,
-which already holds the squared distance to the nearest end point).
+which already holds the (kernelled) squared distance to the nearest end point).
 """
 
 from __future__ import annotations
@@ -26,8 +26,11 @@ def robot_square(diameter: float, cell: float) -> int:
 
 
 @njit(cache=True)
-def build_local_map(pts, n, field, meta, occupied_radius, grid):
-    """Render ``pts[:n]`` (sensor at the origin) into ``grid`` over the field's window."""
+def build_local_map(pts, n, field, meta, inv_c2, occupied_radius, grid):
+    """Render ``pts[:n]`` (sensor at the origin) into ``grid`` over the field's window.
+
+    ``inv_c2`` is the field's Cauchy kernel (0: the field holds plain ``d²``).
+    """
     nx = int(meta[NX])
     ny = int(meta[NY])
     ox = meta[OX]
@@ -57,5 +60,7 @@ def build_local_map(pts, n, field, meta, occupied_radius, grid):
         for i in range(max(ci - reach, 0), min(ci + reach + 1, ny)):
             for j in range(max(cj - reach, 0), min(cj + reach + 1, nx)):
                 d2 = field[i, j]
+                if inv_c2 > 0.0:
+                    d2 = math.expm1(d2) / inv_c2
                 if d2 < r2:
                     grid[i, j] = int(255.0 * math.sqrt(d2) / occupied_radius)

@@ -15,7 +15,7 @@ import math
 
 from numba import njit
 
-from runtime.distance_field import INV_RES, NX, NY, OX, OY, field_lookup
+from runtime.distance_field import INV_RES, NX, NY, OX, OY, R2, lookup_grid
 from runtime.local_map import UNKNOWN
 
 KERNEL_PAPER = 0
@@ -23,23 +23,33 @@ KERNEL_CAUCHY = 1
 KERNELS = {"paper": KERNEL_PAPER, "cauchy": KERNEL_CAUCHY}
 
 
-@njit(cache=True, inline="always")
-def scan_to_scan_error(field, meta, pts, n, stride, x, y, t, kernel, inv_c2):
-    """Eq. 14 (or its per-point Cauchy variant) over every ``stride``-th of the first ``n`` points."""
-    c = math.cos(t)
-    s = math.sin(t)
+# Reassociation and contraction (FMA) let LLVM schedule the inner loop ~1.9x faster; NaN and
+# infinity semantics are kept, and the same binary gives the same result every run.
+FAST = {"contract", "reassoc", "nsz", "arcp"}
+
+
+@njit(cache=True, fastmath=FAST)
+def scan_to_scan_error(field, meta, pts, n, stride, x, y, t, kernel):
+    """Eq. 14 (or its per-point Cauchy variant) over every ``stride``-th of the first ``n`` points.
+
+    The field already holds each point's cost (``d²`` or ``log(1 + d²/c²)``), so the kernels
+    differ only in the outer logarithm Eq. 14 puts around the sum. Points are moved by ``ΔP``
+    (Eq. 5) straight into grid coordinates.
+    """
+    inv = meta[INV_RES]
+    c = math.cos(t) * inv
+    s = math.sin(t) * inv
+    gx0 = (x - meta[OX]) * inv
+    gy0 = (y - meta[OY]) * inv
+    last_x = int(meta[NX]) - 1
+    last_y = int(meta[NY]) - 1
+    far = meta[R2]
     acc = 0.0
-    if kernel == KERNEL_PAPER:
-        for i in range(0, n, stride):
-            px = x + c * pts[i, 0] - s * pts[i, 1]  # Eq. 5
-            py = y + s * pts[i, 0] + c * pts[i, 1]
-            acc += field_lookup(field, meta, px, py)
-        return math.log1p(acc)
     for i in range(0, n, stride):
-        px = x + c * pts[i, 0] - s * pts[i, 1]
-        py = y + s * pts[i, 0] + c * pts[i, 1]
-        acc += math.log1p(field_lookup(field, meta, px, py) * inv_c2)
-    return acc
+        gx = gx0 + c * pts[i, 0] - s * pts[i, 1]
+        gy = gy0 + s * pts[i, 0] + c * pts[i, 1]
+        acc += lookup_grid(field, gx, gy, last_x, last_y, far)
+    return math.log1p(acc) if kernel == KERNEL_PAPER else acc
 
 
 @njit(cache=True, inline="always")

@@ -27,69 +27,96 @@ def abc_start(ws):
     ws.scal[PHASE] = _INIT
 
 
+# Helpers take the arrays they use, not the workspace: passing the 15-array workspace down
+# a call chain costs more in reference counting than the helper's work.
 @njit(cache=True)
-def _random_source(ws, row):
+def _random_source(cand, row, lo, hi, rng):
     """Eq. 9: ``x_j = l_j + r·(u_j − l_j)``."""
-    for d in range(ws.pos.shape[1]):
-        ws.cand[row, d] = ws.lo[d] + uniform(ws.rng) * (ws.hi[d] - ws.lo[d])
+    for d in range(cand.shape[1]):
+        cand[row, d] = lo[d] + uniform(rng) * (hi[d] - lo[d])
 
 
 @njit(cache=True)
-def _neighbour(ws, row, i):
+def _neighbour(pos, cand, row, i, lo, hi, rng):
     """Eq. 11: move one random dimension of source ``i`` relative to another source ``k``."""
-    n, dim = ws.pos.shape
-    k = randint(ws.rng, n - 1)
+    n, dim = pos.shape
+    k = randint(rng, n - 1)
     if k >= i:
         k += 1
-    j = randint(ws.rng, dim)
-    phi = 2.0 * uniform(ws.rng) - 1.0
+    j = randint(rng, dim)
+    phi = 2.0 * uniform(rng) - 1.0
     for d in range(dim):
-        ws.cand[row, d] = ws.pos[i, d]
-    ws.cand[row, j] = clip(ws.pos[i, j] + phi * (ws.pos[i, j] - ws.pos[k, j]), ws.lo[j], ws.hi[j])
-    ws.cand_idx[row] = i
+        cand[row, d] = pos[i, d]
+    cand[row, j] = clip(pos[i, j] + phi * (pos[i, j] - pos[k, j]), lo[j], hi[j])
+
+
+@njit(cache=True)
+def _ask_init(ws):
+    n = ws.pos.shape[0]
+    for i in range(n):
+        _random_source(ws.cand, i, ws.lo, ws.hi, ws.rng)
+        ws.cand_idx[i] = i
+    return n
+
+
+@njit(cache=True)
+def _ask_employed(ws):
+    n = ws.pos.shape[0]
+    pos, cand, lo, hi, rng = ws.pos, ws.cand, ws.lo, ws.hi, ws.rng
+    for i in range(n):
+        _neighbour(pos, cand, i, i, lo, hi, rng)
+        ws.cand_idx[i] = i
+    return n
+
+
+@njit(cache=True)
+def _ask_onlooker(ws):
+    # Eq. 10 with fitness 1/(1+f) for f >= 0 (1+|f| below zero), as in Karaboga's code.
+    n = ws.pos.shape[0]
+    total = 0.0
+    for i in range(n):
+        f = ws.val[i]
+        ws.fit[i] = 1.0 / (1.0 + f) if f >= 0.0 else 1.0 + abs(f)
+        total += ws.fit[i]
+    for row in range(n):
+        r = uniform(ws.rng) * total
+        i = 0
+        acc = ws.fit[0]
+        while acc < r and i < n - 1:
+            i += 1
+            acc += ws.fit[i]
+        _neighbour(ws.pos, ws.cand, row, i, ws.lo, ws.hi, ws.rng)
+        ws.cand_idx[row] = i
+    return n
+
+
+@njit(cache=True)
+def _ask_scout(ws):
+    # The most-tried source beyond the limit is abandoned and re-initialised.
+    worst = -1
+    trials = ws.mem_val
+    most = ws.params[LIMIT]
+    for i in range(trials.shape[0]):
+        if trials[i] > most:
+            most = trials[i]
+            worst = i
+    if worst < 0:
+        return 0
+    _random_source(ws.cand, 0, ws.lo, ws.hi, ws.rng)
+    ws.cand_idx[0] = worst
+    return 1
 
 
 @njit(cache=True)
 def abc_ask(ws):
-    n = ws.pos.shape[0]
     phase = ws.scal[PHASE]
     if phase == _INIT:
-        for i in range(n):
-            _random_source(ws, i)
-            ws.cand_idx[i] = i
-        return n
+        return _ask_init(ws)
     if phase == _EMPLOYED:
-        for i in range(n):
-            _neighbour(ws, i, i)
-        return n
+        return _ask_employed(ws)
     if phase == _ONLOOKER:
-        # Eq. 10 with fitness 1/(1+f) for f >= 0 (1+|f| below zero), as in Karaboga's code.
-        total = 0.0
-        for i in range(n):
-            f = ws.val[i]
-            ws.fit[i] = 1.0 / (1.0 + f) if f >= 0.0 else 1.0 + abs(f)
-            total += ws.fit[i]
-        for row in range(n):
-            r = uniform(ws.rng) * total
-            i = 0
-            acc = ws.fit[0]
-            while acc < r and i < n - 1:
-                i += 1
-                acc += ws.fit[i]
-            _neighbour(ws, row, i)
-        return n
-    # Scout: the most-tried source beyond the limit is abandoned and re-initialised.
-    worst = -1
-    most = ws.params[LIMIT]
-    for i in range(n):
-        if ws.mem_val[i] > most:
-            most = ws.mem_val[i]
-            worst = i
-    if worst < 0:
-        return 0
-    _random_source(ws, 0)
-    ws.cand_idx[0] = worst
-    return 1
+        return _ask_onlooker(ws)
+    return _ask_scout(ws)
 
 
 @njit(cache=True)

@@ -33,28 +33,29 @@ def fa_start(ws):
 
 @njit(cache=True)
 def _move(ws):
-    """Eq. 12: every firefly moves toward every brighter one (lower f is brighter)."""
+    """Eq. 12: every firefly moves toward every brighter one (lower f is brighter), with a
+    random step ``α·ε`` on each move; the brightest only walks at random."""
     n, dim = ws.pos.shape
     alpha = ws.scal[ALPHA]
     beta0, gamma = ws.params[BETA0], ws.params[GAMMA]
+    pos, val, lo, hi, rng = ws.pos, ws.val, ws.lo, ws.hi, ws.rng
     for i in range(n):
         moved = False
         for j in range(n):
-            if ws.val[j] < ws.val[i]:
+            if val[j] < val[i]:
                 r2 = 0.0  # Eq. 13, squared, in box-normalised coordinates
                 for d in range(dim):
-                    diff = (ws.pos[j, d] - ws.pos[i, d]) / (ws.hi[d] - ws.lo[d])
+                    diff = (pos[j, d] - pos[i, d]) / (hi[d] - lo[d])
                     r2 += diff * diff
                 beta = beta0 * math.exp(-gamma * r2)
                 for d in range(dim):
-                    step = alpha * normal(ws.rng) * (ws.hi[d] - ws.lo[d])
-                    x = ws.pos[i, d] + beta * (ws.pos[j, d] - ws.pos[i, d]) + step
-                    ws.pos[i, d] = clip(x, ws.lo[d], ws.hi[d])
+                    step = alpha * normal(rng) * (hi[d] - lo[d])
+                    pos[i, d] = clip(pos[i, d] + beta * (pos[j, d] - pos[i, d]) + step, lo[d], hi[d])
                 moved = True
-        if not moved:  # the brightest walks at random
+        if not moved:
             for d in range(dim):
-                x = ws.pos[i, d] + alpha * normal(ws.rng) * (ws.hi[d] - ws.lo[d])
-                ws.pos[i, d] = clip(x, ws.lo[d], ws.hi[d])
+                x = pos[i, d] + alpha * normal(rng) * (hi[d] - lo[d])
+                pos[i, d] = clip(x, lo[d], hi[d])
     ws.scal[ALPHA] = alpha * ws.params[ALPHA_DECAY]
 
 
