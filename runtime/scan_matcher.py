@@ -83,7 +83,9 @@ class MatcherConfig:
     search_window: tuple[float, float, float] = (2.0, 2.0, 1.6)
     guess_window: tuple[float, float, float] = (0.3, 0.3, 0.3)  # half-widths around a guess
     grid_cells: int = 1024  # capacity per side of the reference grids
-    scan_to_map: bool = True  # Alg. 5's fallback
+    # Alg. 5's scan-to-map fallback. Off by default: on the keyframe logs its result was kept
+    # for 0.1–0.2% of pairs, changed no failure, and raised p99 latency ~5× (README).
+    scan_to_map: bool = False
     robot_diameter: float = 0.35  # m, for Eq. 17
     occupied_radius: float = 0.1  # m, ramp around obstacles in the local grid
 
@@ -102,6 +104,7 @@ class MatcherConfig:
             coarse_resolution=0.0,
             stride=1,
             refine_evaluations=0,
+            scan_to_map=True,
         )
         base.update(overrides)
         return cls(**base)

@@ -76,7 +76,7 @@ def test_same_seed_same_match_bit_for_bit():
 
 def test_threshold_tracks_mean_plus_std_and_triggers_fallback():
     ref, cur = scans_for(MOTIONS["translation"], 0.02)
-    m = ScanMatcher(MatcherConfig(), seed=0)
+    m = ScanMatcher(MatcherConfig(scan_to_map=True), seed=0)
     reference = m.build_reference(ref)
     errors = [m.align_scans(cur, reference).error for _ in range(5)]
     assert m.threshold.count == 5

@@ -29,14 +29,14 @@ def abc_start(ws):
 
 # Helpers take the arrays they use, not the workspace: passing the 15-array workspace down
 # a call chain costs more in reference counting than the helper's work.
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _random_source(cand, row, lo, hi, rng):
     """Eq. 9: ``x_j = l_j + r·(u_j − l_j)``."""
     for d in range(cand.shape[1]):
         cand[row, d] = lo[d] + uniform(rng) * (hi[d] - lo[d])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _neighbour(pos, cand, row, i, lo, hi, rng):
     """Eq. 11: move one random dimension of source ``i`` relative to another source ``k``."""
     n, dim = pos.shape
@@ -119,18 +119,19 @@ def abc_ask(ws):
     return _ask_scout(ws)
 
 
-@njit(cache=True)
-def _greedy(ws, row):
-    i = ws.cand_idx[row]
-    v = ws.cand_val[row]
-    if v < ws.val[i]:
-        ws.val[i] = v
-        ws.mem_val[i] = 0.0
-        for d in range(ws.pos.shape[1]):
-            ws.pos[i, d] = ws.cand[row, d]
-        offer_best(ws, ws.pos[i], v)
+@njit(cache=True, inline="always")
+def _greedy(pos, val, trials, cand, cand_val, cand_idx, row, scal, best):
+    """Keep candidate ``row`` if it beats its source, else count a failed trial."""
+    i = cand_idx[row]
+    v = cand_val[row]
+    if v < val[i]:
+        val[i] = v
+        trials[i] = 0.0
+        for d in range(pos.shape[1]):
+            pos[i, d] = cand[row, d]
+        offer_best(scal, best, pos, i, v)
     else:
-        ws.mem_val[i] += 1.0
+        trials[i] += 1.0
 
 
 @njit(cache=True)
@@ -143,11 +144,11 @@ def abc_tell(ws, m):
             ws.mem_val[i] = 0.0
             for d in range(ws.pos.shape[1]):
                 ws.pos[i, d] = ws.cand[row, d]
-            offer_best(ws, ws.pos[i], ws.val[i])
+            offer_best(ws.scal, ws.best, ws.pos, i, ws.val[i])
         if phase == _SCOUT:
             end_iteration(ws, ws.val)
         ws.scal[PHASE] = _EMPLOYED
         return
     for row in range(m):
-        _greedy(ws, row)
+        _greedy(ws.pos, ws.val, ws.mem_val, ws.cand, ws.cand_val, ws.cand_idx, row, ws.scal, ws.best)
     ws.scal[PHASE] = _ONLOOKER if phase == _EMPLOYED else _SCOUT

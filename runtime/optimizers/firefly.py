@@ -75,7 +75,7 @@ def fa_ask(ws):
 def fa_tell(ws, m):
     for i in range(m):
         ws.val[i] = ws.cand_val[i]
-        offer_best(ws, ws.pos[i], ws.val[i])
+        offer_best(ws.scal, ws.best, ws.pos, i, ws.val[i])
     if ws.scal[PHASE] != 0.0:
         end_iteration(ws, ws.val)
     ws.scal[PHASE] = 1.0

@@ -49,7 +49,7 @@ def pso_tell(ws, m):
             ws.mem_val[i] = v
             for d in range(dim):
                 ws.mem[i, d] = ws.pos[i, d]
-        offer_best(ws, ws.pos[i], v)
+        offer_best(ws.scal, ws.best, ws.pos, i, v)
     end_iteration(ws, ws.mem_val)
     w, c1, c2 = ws.params[W], ws.params[C1], ws.params[C2]
     for i in range(n):

@@ -103,16 +103,19 @@ def reset_run(
     s[MAX_EVALUATIONS] = max_evaluations if max_evaluations > 0 else np.inf
 
 
-@njit(cache=True)
-def offer_best(ws, x, value):
-    """Keep ``x`` as the best-so-far if it improves on it; halt on the target value."""
-    s = ws.scal
-    if value < s[BEST_VAL]:
-        s[BEST_VAL] = value
-        for d in range(ws.best.shape[0]):
-            ws.best[d] = x[d]
-        if value < s[TARGET_VALUE]:
-            s[DONE] = 1.0
+@njit(cache=True, inline="always")
+def offer_best(scal, best, members, i, value):
+    """Keep member ``i`` as the best-so-far if it improves on it; halt on the target value.
+
+    It runs per evaluation, so it takes arrays and a row index: passing the workspace or a
+    row view costs reference counting worth more than the work.
+    """
+    if value < scal[BEST_VAL]:
+        scal[BEST_VAL] = value
+        for d in range(best.shape[0]):
+            best[d] = members[i, d]
+        if value < scal[TARGET_VALUE]:
+            scal[DONE] = 1.0
 
 
 @njit(cache=True)
@@ -145,6 +148,6 @@ def end_iteration(ws, values):
         s[DONE] = 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def clip(v, lo, hi):
     return lo if v < lo else (hi if v > hi else v)

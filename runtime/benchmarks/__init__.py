@@ -1,0 +1,1 @@
+"""Benchmarks behind ``swarmslam bench ...``; each writes JSON and prints a table."""
