@@ -15,9 +15,12 @@ class DatasetsNotFound(FileNotFoundError):
 def find_datasets(explicit=None) -> Path:
     """The datasets folder: ``explicit``, ``$SWARMSLAM_DATASETS``, or ``../shared/datasets``
     seen from the working directory or from the project checkout."""
+    if explicit:  # asked for by name: that folder or an error, never a silent substitute
+        if not Path(explicit).is_dir():
+            raise DatasetsNotFound(f"datasets folder {explicit} does not exist")
+        return Path(explicit).resolve()
     here = Path(__file__).resolve().parent.parent
     candidates = [
-        explicit,
         os.environ.get(ENV),
         Path.cwd() / ".." / "shared" / "datasets",
         here / ".." / "shared" / "datasets",
@@ -30,8 +33,6 @@ def find_datasets(explicit=None) -> Path:
         tried.append(str(p))
         if p.is_dir():
             return p.resolve()
-    if explicit:
-        raise DatasetsNotFound(f"datasets folder {explicit} does not exist")
     raise DatasetsNotFound(
         "benchmark datasets not found (looked in: "
         + ", ".join(tried)

@@ -1,4 +1,5 @@
-"""A one-line progress display on stderr for long runs (no dependency needed)."""
+"""Progress for long runs on stderr: a live line on a terminal, a line every few seconds in
+a log (CI), so neither is flooded. No dependency needed."""
 
 from __future__ import annotations
 
@@ -7,10 +8,11 @@ import time
 
 
 class Progress:
-    def __init__(self, total: int, label: str = "", stream=None, every: float = 0.5):
+    def __init__(self, total: int, label: str = "", stream=None, every: float | None = None):
         self.total, self.label = max(int(total), 1), label
         self.stream = stream if stream is not None else sys.stderr
-        self.every = every
+        self.live = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.every = every if every is not None else (0.5 if self.live else 10.0)
         self.start = self._last = time.perf_counter()
         self.done = 0
 
@@ -22,12 +24,14 @@ class Progress:
             rate = self.done / max(now - self.start, 1e-9)
             eta = (self.total - self.done) / rate if rate > 0 else 0.0
             pct = 100.0 * self.done / self.total
+            start, end = ("\r", "") if self.live else ("", "\n")
             self.stream.write(
-                f"\r{self.label} {self.done}/{self.total} ({pct:5.1f}%) "
-                f"{rate:7.1f}/s eta {eta:5.0f}s {note}"
+                f"{start}{self.label} {self.done}/{self.total} ({pct:5.1f}%) "
+                f"{rate:7.1f}/s eta {eta:5.0f}s {note}{end}"
             )
             self.stream.flush()
 
     def close(self) -> None:
-        self.stream.write("\n")
-        self.stream.flush()
+        if self.live:
+            self.stream.write("\n")
+            self.stream.flush()

@@ -12,9 +12,15 @@ import numpy as np
 from runtime.pose import compose
 
 
-def room_world(seed: int = 0, size=(10.0, 8.0), boxes: int = 6, walls: int = 2) -> np.ndarray:
-    """A walled room with interior partial walls and boxes; segments ``(M, 4)`` as x0 y0 x1 y1."""
+def room_world(seed: int = 0, size=(10.0, 8.0), boxes: int = 6, walls: int = 2,
+               keep_clear=None, clearance: float = 0.8) -> np.ndarray:
+    """A walled room with interior partial walls and boxes; segments ``(M, 4)`` as x0 y0 x1 y1.
+
+    Boxes centred within ``clearance`` of any point of ``keep_clear`` (``(K, 2)``, e.g. a
+    planned path) are left out.
+    """
     rng = np.random.default_rng(seed)
+    clear = None if keep_clear is None else np.asarray(keep_clear, dtype=np.float64)[:, :2]
     w, h = size
     segs = [(0, 0, w, 0), (w, 0, w, h), (w, h, 0, h), (0, h, 0, 0)]
     for _ in range(walls):  # partial walls from the outer boundary, leaving doorways
@@ -30,6 +36,8 @@ def room_world(seed: int = 0, size=(10.0, 8.0), boxes: int = 6, walls: int = 2) 
         cx, cy = rng.uniform(1.0, w - 1.0), rng.uniform(1.0, h - 1.0)
         bw, bh = rng.uniform(0.2, 0.8, size=2)
         a = rng.uniform(0, np.pi)
+        if clear is not None and np.min(np.hypot(*(clear - (cx, cy)).T)) < clearance:
+            continue
         corners = np.array([[-bw, -bh], [bw, -bh], [bw, bh], [-bw, bh]]) / 2
         rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
         c = corners @ rot.T + (cx, cy)

@@ -28,7 +28,7 @@ def _bench_matcher(args) -> int:
 def _demo(args) -> int:
     from runtime.demo import run_demo
 
-    run_demo(out_dir=Path(args.out), optimizer=args.optimizer, seed=args.seed)
+    run_demo(out_dir=Path(args.out), optimizer=args.optimizer, seed=args.seed, steps=args.steps)
     return 0
 
 
@@ -40,6 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--out", default="swarmslam-demo", help="output folder")
     demo.add_argument("--optimizer", default="abc", choices=["abc", "pso", "fa"])
     demo.add_argument("--seed", type=int, default=0)
+    demo.add_argument("--steps", type=int, default=120, help="scans along the loop")
     demo.set_defaults(func=_demo)
 
     bench = sub.add_parser("bench", help="benchmarks (JSON + table)")
