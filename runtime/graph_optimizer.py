@@ -1,0 +1,273 @@
+"""Gauss–Newton on the pose graph (Eq. 21): ``H Δx = −b`` from every edge's Jacobians.
+
+* Assembly: one compiled pass over the edges into preallocated triplets (a Python loop over
+  edges was 40× slower), scattered into a CSC pattern that is worked out once per edge set.
+* Solve: sparse LDLᵀ with AMD ordering (qdldl; scipy has no sparse Cholesky, and SuperLU took
+  88 ms per iteration on M3500 against 5 ms). The pattern is fixed while the edges are, so
+  later iterations only refactor numerically.
+* The first pose is fixed by leaving it out of the unknowns. Perturbations are additive on
+  ``(x, y, θ)``, as in g2o's ``VertexSE2``, so the χ² reached is g2o's.
+* Plain Gauss–Newton, as g2o iterates it: a step that raises χ² is kept (from INTEL's odometry
+  start χ² rises 30× before falling to 215.83 in five steps; rejecting such steps stalls far
+  from the optimum). Only if it has not converged after ``max_iterations`` (or χ² is no longer
+  finite) does it restart from the initial poses with Levenberg–Marquardt damping (Nielsen's
+  rule, ``(H + μI) Δx = −b``, as g2o's ``lm`` solver).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import qdldl
+import scipy.sparse as sp
+from numba import njit
+from scipy.sparse.linalg import splu
+
+from runtime.pose import wrap_angle_nb
+from runtime.pose_graph import PoseGraph
+
+
+@njit(cache=True)
+def assemble(poses, ij, z, info, rows, cols, vals, b):
+    """Fill the triplets of H (36 per edge) and b; return χ² at the current poses.
+
+    Node 0 is fixed: its rows and columns are sent to index -1 and dropped by the caller.
+    Unknown ``3(k−1)+d`` is component ``d`` of node ``k``.
+    """
+    b[:] = 0.0
+    chi2 = 0.0
+    A = np.empty((3, 3))
+    B = np.empty((3, 3))
+    e = np.empty(3)
+    oe = np.empty(3)
+    for k in range(ij.shape[0]):
+        i = ij[k, 0]
+        j = ij[k, 1]
+        ci = math.cos(poses[i, 2])
+        si = math.sin(poses[i, 2])
+        cz = math.cos(z[k, 2])
+        sz = math.sin(z[k, 2])
+        dx = poses[j, 0] - poses[i, 0]
+        dy = poses[j, 1] - poses[i, 1]
+        ux = ci * dx + si * dy - z[k, 0]
+        uy = -si * dx + ci * dy - z[k, 1]
+        e[0] = cz * ux + sz * uy  # Eq. 18
+        e[1] = -sz * ux + cz * uy
+        e[2] = wrap_angle_nb(poses[j, 2] - poses[i, 2] - z[k, 2])
+        # M = R_zᵀ R_iᵀ; ∂e_t/∂t_j = M, ∂e_t/∂t_i = −M, ∂e_t/∂θ_i = R_zᵀ dR_iᵀ/dθ (t_j − t_i)
+        m00 = cz * ci - sz * si
+        m01 = cz * si + sz * ci
+        m10 = -sz * ci - cz * si
+        m11 = -sz * si + cz * ci
+        gx = -si * dx + ci * dy  # dR_iᵀ/dθ (t_j − t_i)
+        gy = -ci * dx - si * dy
+        A[0, 0] = -m00
+        A[0, 1] = -m01
+        A[0, 2] = cz * gx + sz * gy
+        A[1, 0] = -m10
+        A[1, 1] = -m11
+        A[1, 2] = -sz * gx + cz * gy
+        A[2, 0] = 0.0
+        A[2, 1] = 0.0
+        A[2, 2] = -1.0
+        B[0, 0] = m00
+        B[0, 1] = m01
+        B[0, 2] = 0.0
+        B[1, 0] = m10
+        B[1, 1] = m11
+        B[1, 2] = 0.0
+        B[2, 0] = 0.0
+        B[2, 1] = 0.0
+        B[2, 2] = 1.0
+        for a in range(3):
+            acc = 0.0
+            for c in range(3):
+                acc += info[k, a, c] * e[c]
+            oe[a] = acc
+        chi2 += e[0] * oe[0] + e[1] * oe[1] + e[2] * oe[2]
+        base = 36 * k
+        oi = 3 * (i - 1)
+        oj = 3 * (j - 1)
+        for blk in range(4):
+            P = A if blk < 2 else B  # blocks ii, ij, ji, jj
+            Q = A if blk % 2 == 0 else B
+            ro = oi if blk < 2 else oj
+            co = oi if blk % 2 == 0 else oj
+            for r in range(3):
+                for c in range(3):
+                    acc = 0.0  # (Pᵀ Ω Q)[r, c]
+                    for a in range(3):
+                        pa = P[a, r]
+                        if pa != 0.0:
+                            for d in range(3):
+                                acc += pa * info[k, a, d] * Q[d, c]
+                    idx = base + 9 * blk + 3 * r + c
+                    rows[idx] = ro + r if ro >= 0 else -1
+                    cols[idx] = co + c if co >= 0 else -1
+                    vals[idx] = acc
+        for r in range(3):
+            ga = 0.0
+            gb = 0.0
+            for a in range(3):
+                ga += A[a, r] * oe[a]
+                gb += B[a, r] * oe[a]
+            if oi >= 0:
+                b[oi + r] += ga
+            if oj >= 0:
+                b[oj + r] += gb
+    return chi2
+
+
+@njit(cache=True)
+def apply_update(poses, dx):
+    for k in range(1, poses.shape[0]):
+        poses[k, 0] += dx[3 * (k - 1)]
+        poses[k, 1] += dx[3 * (k - 1) + 1]
+        poses[k, 2] = wrap_angle_nb(poses[k, 2] + dx[3 * (k - 1) + 2])
+
+
+@njit(cache=True)
+def scatter(vals, slot, data):
+    """Sum triplet values into their CSC slots (``slot`` −1: dropped)."""
+    data[:] = 0.0
+    for t in range(vals.shape[0]):
+        k = slot[t]
+        if k >= 0:
+            data[k] += vals[t]
+
+
+@dataclass
+class OptimizeReport:
+    chi2_initial: float
+    chi2: float
+    iterations: int
+    seconds: float
+    solver: str
+
+
+class GaussNewton:
+    """Optimises a :class:`PoseGraph` in place; triplet buffers sized from its capacities."""
+
+    def __init__(self, graph: PoseGraph, max_iterations: int = 30, tolerance: float = 1e-9,
+                 solver: str = "ldl"):
+        if solver not in ("ldl", "superlu"):
+            raise ValueError(f"unknown solver {solver!r}; choose 'ldl' or 'superlu'")
+        self.graph = graph
+        self.max_iterations = max_iterations
+        self.tolerance = tolerance
+        self.solver = solver
+        m = graph.max_edges
+        self._rows = np.zeros(36 * m, np.int64)
+        self._cols = np.zeros(36 * m, np.int64)
+        self._vals = np.zeros(36 * m)
+        self._b = np.zeros(3 * max(graph.max_nodes - 1, 1))
+        self._saved = np.zeros_like(graph.poses)
+        self._pattern_key = None
+
+    def _pattern(self, rows, cols, size):
+        """The upper triangle's CSC pattern and each triplet's slot in it."""
+        keep = (rows >= 0) & (cols >= 0) & (rows <= cols)
+        keys = cols * size + rows  # CSC order: by column, then row
+        unique, inverse = np.unique(keys[keep], return_inverse=True)
+        slot = np.full(len(rows), -1, np.int64)
+        slot[keep] = inverse
+        indices = unique % size
+        indptr = np.zeros(size + 1, np.int64)
+        np.add.at(indptr, unique // size + 1, 1)
+        indptr = np.cumsum(indptr)
+        diag = np.searchsorted(unique, np.arange(size) * size + np.arange(size))
+        self._slot, self._indices, self._indptr, self._diag = slot, indices, indptr, diag
+        self._data = np.zeros(len(unique))
+        self._factor = None
+
+    def _system(self):
+        """Assemble at the current poses: upper-triangular H data, b, and χ²."""
+        g = self.graph
+        n, m = g.n_nodes, g.n_edges
+        size = 3 * (n - 1)
+        rows, cols, vals = self._rows[: 36 * m], self._cols[: 36 * m], self._vals[: 36 * m]
+        b = self._b[:size]
+        chi2 = assemble(g.poses[:n], g.ij[:m], g.z[:m], g.info[:m], rows, cols, vals, b)
+        key = (n, m, id(g))
+        if key != self._pattern_key:  # new edge set: work the pattern out again
+            self._pattern(rows, cols, size)
+            self._pattern_key = key
+        scatter(vals, self._slot, self._data)
+        return b, chi2
+
+    def _solve(self, b, mu):
+        size = len(b)
+        data = self._data
+        if mu > 0.0:
+            data = data.copy()
+            data[self._diag] += mu
+        upper = sp.csc_matrix((data, self._indices, self._indptr), shape=(size, size))
+        if self.solver == "superlu":
+            full = upper + sp.triu(upper, k=1).T
+            return splu(full.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(-b)
+        if self._factor is None:
+            self._factor = qdldl.Solver(upper)
+        else:
+            self._factor.update(upper)
+        return self._factor.solve(-b)
+
+    def optimize(self) -> OptimizeReport:
+        """Gauss–Newton until the relative decrease of χ² is below ``tolerance``."""
+        g = self.graph
+        t0 = time.perf_counter()
+        if g.n_nodes < 2 or g.n_edges == 0:
+            c = g.chi2() if g.n_edges else 0.0
+            return OptimizeReport(c, c, 0, time.perf_counter() - t0, self.solver)
+        poses = g.poses[: g.n_nodes]
+        start = self._saved[: g.n_nodes]
+        start[:] = poses
+        b, chi2 = self._system()
+        initial = chi2
+        for iterations in range(1, self.max_iterations + 1):
+            apply_update(poses, self._solve(b, 0.0))
+            b, new = self._system()
+            converged = 0.0 <= chi2 - new <= self.tolerance * chi2
+            chi2 = new
+            if converged or not np.isfinite(chi2):
+                break
+        if converged:
+            return OptimizeReport(initial, chi2, iterations, time.perf_counter() - t0, self.solver)
+        poses[:] = start
+        chi2, more = self._levenberg_marquardt()
+        return OptimizeReport(initial, chi2, iterations + more, time.perf_counter() - t0,
+                              self.solver + "+lm")
+
+    def _levenberg_marquardt(self):
+        """Nielsen's damping: shrink μ by the gain ratio on success, grow it on failure."""
+        g = self.graph
+        poses = g.poses[: g.n_nodes]
+        saved = np.empty_like(poses)
+        b, chi2 = self._system()
+        mu = 1e-5 * float(np.max(self._data[self._diag]))
+        nu = 2.0
+        iterations = 0
+        for iterations in range(1, 10 * self.max_iterations + 1):
+            dx = self._solve(b, mu)
+            saved[:] = poses
+            apply_update(poses, dx)
+            b_new, new = self._system()
+            predicted = 0.5 * float(dx @ (mu * dx - b))
+            if new < chi2:
+                rho = 0.5 * (chi2 - new) / predicted if predicted > 0 else 1.0
+                mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+                nu = 2.0
+                done = chi2 - new <= self.tolerance * chi2
+                b, chi2 = b_new, new
+                if done:
+                    break
+            else:
+                poses[:] = saved
+                b, _ = self._system()
+                mu *= nu
+                nu *= 2.0
+                if not np.isfinite(mu):
+                    break
+        return chi2, iterations

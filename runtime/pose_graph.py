@@ -1,0 +1,147 @@
+"""The pose graph (method.md §4): nodes, edges and their errors, in capacities fixed at start.
+
+Nothing grows per scan: node poses, edge endpoints, measurements and information matrices live
+in arrays sized at construction. When a capacity is reached, ``add_node``/``add_edge`` raise
+:class:`CapacityError` and the graph is left as it was, so the caller can keep localising.
+
+* Edge error (Eq. 18, Grisetti et al. 2010; g2o's SE2 convention) for ``i → j`` measuring ``z``:
+  ``e = [R_zᵀ (R_iᵀ (t_j − t_i) − t_z) ; mp(θ_j − θ_i − θ_z)]``.
+* Information (Eq. 20): ``Ω = I / σλ²``, with ``σλ`` the matcher's running deviation.
+* Total error (Eq. 21, Alg. 8): ``F = Σ eᵀ Ω e``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from runtime.pose import wrap_angle_nb
+
+ODOMETRY = 0
+LOOP = 1
+
+
+class CapacityError(RuntimeError):
+    """A fixed capacity of the graph is exhausted."""
+
+
+@njit(cache=True)
+def edge_errors(poses, ij, z, out):
+    """Eq. 18 for every edge into ``out`` (E × 3)."""
+    for k in range(ij.shape[0]):
+        i = ij[k, 0]
+        j = ij[k, 1]
+        ci = math.cos(poses[i, 2])
+        si = math.sin(poses[i, 2])
+        dx = poses[j, 0] - poses[i, 0]
+        dy = poses[j, 1] - poses[i, 1]
+        # R_iᵀ (t_j − t_i) − t_z
+        ux = ci * dx + si * dy - z[k, 0]
+        uy = -si * dx + ci * dy - z[k, 1]
+        cz = math.cos(z[k, 2])
+        sz = math.sin(z[k, 2])
+        out[k, 0] = cz * ux + sz * uy
+        out[k, 1] = -sz * ux + cz * uy
+        out[k, 2] = wrap_angle_nb(poses[j, 2] - poses[i, 2] - z[k, 2])
+
+
+@njit(cache=True)
+def weighted_errors(e, info, out):
+    """``eᵀ Ω e`` per edge (Alg. 8's summands)."""
+    for k in range(e.shape[0]):
+        acc = 0.0
+        for a in range(3):
+            for b in range(3):
+                acc += e[k, a] * info[k, a, b] * e[k, b]
+        out[k] = acc
+
+
+def information_from_sigma(sigma_lambda: float) -> np.ndarray:
+    """Eq. 20: ``Ω = I / σλ²``."""
+    if not sigma_lambda > 0:
+        raise ValueError(f"σλ must be > 0 for Eq. 20, got {sigma_lambda}")
+    return np.eye(3) / (sigma_lambda * sigma_lambda)
+
+
+class PoseGraph:
+    def __init__(self, max_nodes: int, max_edges: int):
+        if max_nodes < 1 or max_edges < 0:
+            raise ValueError(f"capacities must be positive, got {max_nodes}, {max_edges}")
+        self.poses = np.zeros((max_nodes, 3))
+        self.stamps = np.zeros(max_nodes)
+        self.ij = np.zeros((max_edges, 2), np.int64)
+        self.z = np.zeros((max_edges, 3))
+        self.info = np.zeros((max_edges, 3, 3))
+        self.kind = np.zeros(max_edges, np.int8)
+        self._e = np.zeros((max_edges, 3))
+        self._w = np.zeros(max_edges)
+        self.n_nodes = 0
+        self.n_edges = 0
+
+    @property
+    def max_nodes(self) -> int:
+        return self.poses.shape[0]
+
+    @property
+    def max_edges(self) -> int:
+        return self.ij.shape[0]
+
+    def add_node(self, pose, stamp: float = 0.0) -> int:
+        if self.n_nodes >= self.max_nodes:
+            raise CapacityError(f"node capacity {self.max_nodes} reached")
+        k = self.n_nodes
+        self.poses[k] = pose
+        self.stamps[k] = stamp
+        self.n_nodes += 1
+        return k
+
+    def add_edge(self, i: int, j: int, z, info, kind: int = ODOMETRY) -> int:
+        if self.n_edges >= self.max_edges:
+            raise CapacityError(f"edge capacity {self.max_edges} reached")
+        if not (0 <= i < self.n_nodes and 0 <= j < self.n_nodes) or i == j:
+            raise ValueError(f"edge {i} -> {j} needs two distinct existing nodes")
+        k = self.n_edges
+        self.ij[k] = (i, j)
+        self.z[k] = z
+        self.info[k] = info
+        self.kind[k] = kind
+        self.n_edges += 1
+        return k
+
+    def remove_last_edge(self) -> None:
+        if self.n_edges == 0:
+            raise ValueError("no edge to remove")
+        self.n_edges -= 1
+
+    def errors(self) -> np.ndarray:
+        """Eq. 18 for every edge, ``(E, 3)`` (a view of an internal buffer)."""
+        n = self.n_edges
+        edge_errors(self.poses, self.ij[:n], self.z[:n], self._e[:n])
+        return self._e[:n]
+
+    def edge_chi2(self) -> np.ndarray:
+        """``eᵀ Ω e`` for every edge (a view of an internal buffer)."""
+        n = self.n_edges
+        weighted_errors(self.errors(), self.info[:n], self._w[:n])
+        return self._w[:n]
+
+    def chi2(self) -> float:
+        """Eq. 21 / Alg. 8: the total error ``F = Σ eᵀ Ω e``."""
+        return float(np.sum(self.edge_chi2()))
+
+    @classmethod
+    def from_arrays(cls, poses, ij, z, info, kind=None, max_nodes=None, max_edges=None):
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+        ij = np.asarray(ij, dtype=np.int64).reshape(-1, 2)
+        g = cls(max_nodes or max(len(poses), 1), max_edges or len(ij))
+        g.n_nodes = len(poses)
+        g.poses[: len(poses)] = poses
+        g.n_edges = len(ij)
+        g.ij[: len(ij)] = ij
+        g.z[: len(ij)] = z
+        g.info[: len(ij)] = info
+        if kind is not None:
+            g.kind[: len(ij)] = kind
+        return g
