@@ -4,6 +4,9 @@
   block of Kümmerle et al.'s metric (Eqs. 22–23): translational norm (m), rotation (rad).
 * :func:`pair_errors` — Eq. 24: mean absolute ``ex, ey, eθ`` over scan pairs.
 * :func:`is_failure` — the matcher benchmark's failure rule.
+* :func:`kummerle` — Eqs. 22–23 over a relations file, as Cartographer's
+  ``compute_relations_metrics``: mean ± std of ``|trans(δ_ij ⊖ δ*_ij)|`` (m) and
+  ``|rot(δ_ij ⊖ δ*_ij)|`` (deg), with ``δ_ij = x_j ⊖ x_i`` from the estimated trajectory.
 """
 
 from __future__ import annotations
@@ -35,3 +38,38 @@ def pair_errors(estimated, reference) -> dict[str, float]:
 def is_failure(e_trans, e_rot, max_trans: float = 0.3, max_rot: float = 0.1):
     """A match fails when it is off by more than 0.3 m or 0.1 rad."""
     return (np.asarray(e_trans) > max_trans) | (np.asarray(e_rot) > max_rot)
+
+
+def kummerle(stamps, poses, relations, tolerance: float = 1e-4) -> dict:
+    """Eqs. 22–23 for the relations whose two timestamps are both in the trajectory.
+
+    ``stamps`` and ``poses`` are the estimated trajectory (one pose per scan); a relation's
+    timestamp matches a scan within ``tolerance`` seconds.
+    """
+    stamps = np.asarray(stamps, dtype=np.float64)
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+    order = np.argsort(stamps)
+    sorted_stamps = stamps[order]
+
+    def lookup(t):
+        k = np.clip(np.searchsorted(sorted_stamps, t), 1, max(len(sorted_stamps) - 1, 1))
+        k = np.where(np.abs(sorted_stamps[k - 1] - t) < np.abs(sorted_stamps[k] - t), k - 1, k)
+        ok = np.abs(sorted_stamps[k] - t) <= tolerance
+        return order[k], ok
+
+    i, ok1 = lookup(relations.t1)
+    j, ok2 = lookup(relations.t2)
+    ok = ok1 & ok2
+    if not np.any(ok):
+        raise ValueError("no relation matches the trajectory's timestamps")
+    estimated = between(poses[j[ok]], poses[i[ok]])  # δ_ij = x_j ⊖ x_i
+    e_t, e_r = relative_errors(estimated, relations.delta[ok])
+    e_r = np.degrees(e_r)
+    return {
+        "eT": float(np.mean(e_t)),
+        "eT_std": float(np.std(e_t)),
+        "eR_deg": float(np.mean(e_r)),
+        "eR_std": float(np.std(e_r)),
+        "relations_used": int(ok.sum()),
+        "relations_total": int(len(relations)),
+    }

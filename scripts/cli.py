@@ -25,6 +25,46 @@ def _bench_matcher(args) -> int:
     return 0
 
 
+def _bench_posegraph(args) -> int:
+    from runtime.benchmarks.posegraph import bench_posegraph
+    from runtime.datasets import find_datasets
+
+    bench_posegraph(find_datasets(args.data), args.repeats, args.json)
+    return 0
+
+
+def _bench_slam(args) -> int:
+    from runtime.benchmarks.slam import LOGS, bench_slam
+    from runtime.datasets import find_datasets
+
+    logs = tuple(d.strip() for d in args.datasets.split(",") if d.strip())
+    for d in logs:
+        if d not in LOGS:
+            raise SystemExit(f"unknown dataset {d!r}; choose from {', '.join(LOGS)}")
+    modes = {"both": (True, False), "odometry": (True,), "scans": (False,)}[args.modes]
+    optimizers = tuple(o.strip() for o in args.optimizers.split(",") if o.strip())
+    bench_slam(find_datasets(args.data), optimizers, logs, modes, args.limit, args.out, args.json)
+    return 0
+
+
+def _replay(args) -> int:
+    from runtime.replay import replay
+
+    m = replay(args.log, args.relations, args.optimizer, not args.no_odometry, args.out,
+               args.limit, args.seed)
+    print(f"{m['scans']} scans, {m['nodes']} nodes, {m['loops_accepted']} loops closed, "
+          f"{m['real_time_factor']:.1f}x real time, latency {m['latency_ms_median']:.1f} ms "
+          f"median / {m['latency_ms_p99']:.1f} ms p99")
+    if "eT" in m:
+        print(f"relations: eT {m['eT']:.4f} ± {m['eT_std']:.4f} m, "
+              f"eR {m['eR_deg']:.3f} ± {m['eR_std']:.3f} deg ({m['relations_used']} used)")
+    if args.out:
+        print(f"wrote {args.out}/map.pgm, map.yaml, map.png, trajectory.tum, graph.g2o, metrics.json")
+    if m["status"] != "ok":
+        print(f"status: {m['status']}")
+    return 0
+
+
 def _demo(args) -> int:
     from runtime.demo import run_demo
 
@@ -43,6 +83,16 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--steps", type=int, default=120, help="scans along the loop")
     demo.set_defaults(func=_demo)
 
+    rp = sub.add_parser("replay", help="run the SLAM over a CARMEN log")
+    rp.add_argument("log", help="CARMEN log (.clf, .log, plain or .gz)")
+    rp.add_argument("--relations", help="Kümmerle relations file to score against")
+    rp.add_argument("--optimizer", default="abc", choices=["abc", "pso", "fa"])
+    rp.add_argument("--no-odometry", action="store_true", help="scans only, as in the paper")
+    rp.add_argument("--out", default="swarmslam-replay", help="output folder")
+    rp.add_argument("--limit", type=int, help="only the first N scans")
+    rp.add_argument("--seed", type=int, default=0)
+    rp.set_defaults(func=_replay)
+
     bench = sub.add_parser("bench", help="benchmarks (JSON + table)")
     bsub = bench.add_subparsers(dest="benchmark", required=True)
     m = bsub.add_parser("matcher", help="scan matching on keyframe logs, no initial guess")
@@ -54,6 +104,20 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--seed", type=int, default=0)
     m.add_argument("--json", help="write results here (atomically)")
     m.set_defaults(func=_bench_matcher)
+    s = bsub.add_parser("slam", help="SLAM on the raw Intel/ACES logs, scored by relations")
+    s.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
+    s.add_argument("--optimizers", default="abc,pso,fa")
+    s.add_argument("--datasets", default="intel,aces")
+    s.add_argument("--modes", default="both", choices=["both", "odometry", "scans"])
+    s.add_argument("--limit", type=int, help="only the first N scans of each log")
+    s.add_argument("--out", help="keep each run's map, trajectory and graph here")
+    s.add_argument("--json", help="write results here (atomically)")
+    s.set_defaults(func=_bench_slam)
+    pg = bsub.add_parser("posegraph", help="Gauss-Newton on the g2o benchmark graphs")
+    pg.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
+    pg.add_argument("--repeats", type=int, default=5)
+    pg.add_argument("--json", help="write results here (atomically)")
+    pg.set_defaults(func=_bench_posegraph)
     return p
 
 

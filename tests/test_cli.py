@@ -57,3 +57,33 @@ def test_demo_writes_trajectories_figure_and_summary(tmp_path, capsys):
         assert (tmp_path / name).stat().st_size > 0
     assert len((tmp_path / "trajectory_estimated.tum").read_text().splitlines()) == 30
     assert "drift after" in capsys.readouterr().out
+
+
+def test_replay_writes_map_trajectory_graph_and_metrics(tmp_path, capsys):
+    log = tmp_path / "run.clf.gz"
+    poses = write_keyframe_log(log, steps=12)
+    rel = tmp_path / "run.relations"
+    from runtime.pose import between
+
+    lines = []
+    for k in range(len(poses) - 1):
+        d = between(poses[k + 1], poses[k])
+        lines.append(f"{k:.3f} {k + 1:.3f} {d[0]:.6f} {d[1]:.6f} 0 0 0 {d[2]:.6f}\n")
+    rel.write_text("".join(lines))
+    out = tmp_path / "out"
+    assert main(["replay", str(log), "--relations", str(rel), "--out", str(out)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    for key in ("eT", "eT_std", "eR_deg", "eR_std", "relations_used", "wall_seconds",
+                "data_seconds", "real_time_factor", "latency_ms_median", "latency_ms_p99"):
+        assert key in m
+    assert m["relations_used"] == 11 and m["eT"] < 0.05
+    for name in ("map.pgm", "map.yaml", "map.png", "trajectory.tum", "graph.g2o"):
+        assert (out / name).stat().st_size > 0
+    assert "relations: eT" in capsys.readouterr().out
+
+
+def test_replay_reports_malformed_log_with_line(tmp_path, capsys):
+    bad = tmp_path / "bad.clf"
+    bad.write_text("FLASER 3 1.0 2.0\n")
+    assert main(["replay", str(bad)]) == 2
+    assert "bad.clf:1: range" in capsys.readouterr().err

@@ -1,0 +1,133 @@
+"""Seek_Loop_Closure (Alg. 7, method.md §5): candidates, outlier elimination, alignment, and
+the consistency test that replaces the literal "error did not grow" rule.
+
+1. Candidates: nodes near the new node's position, the most recent ones excluded (they are
+   neighbours, not loops). A linear scan in compiled code over the node array stands in for
+   the k-d tree: at the capacities used (≤ 10⁴ nodes) it costs microseconds, needs no
+   rebuilding as nodes move under optimisation, and allocates nothing.
+2. Outliers: keep candidates inside the 95% ellipse (χ²₂ = 5.991) of the relative position
+   covariance, propagated along the chain of odometry edges.
+3. For the closest remaining candidates: align the new node's scan with the candidate's
+   (Alg. 5, the search box centred on the graph's current estimate), and accept the match only
+   if its λ is within the matcher's rejection threshold. Add the edge, re-optimise, and keep it
+   only if its own error ``eᵀΩe`` stays under the χ²₃ gate (7.81) and the other edges' total
+   error did not grow markedly; otherwise remove it and restore the poses.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from runtime.pose import between
+
+CHI2_2D_95 = 5.991
+
+
+@njit(cache=True)
+def nearby_nodes(poses, n_nodes, x, y, radius, exclude_from, out_idx, out_d2):
+    """Indices of nodes ``< exclude_from`` within ``radius`` of ``(x, y)``, closest first."""
+    count = 0
+    r2 = radius * radius
+    for k in range(min(n_nodes, exclude_from)):
+        dx = poses[k, 0] - x
+        dy = poses[k, 1] - y
+        d2 = dx * dx + dy * dy
+        if d2 > r2:
+            continue
+        # insertion into the sorted, capacity-bounded output
+        pos = count if count < out_idx.shape[0] else out_idx.shape[0]
+        while pos > 0 and out_d2[pos - 1] > d2:
+            if pos < out_idx.shape[0]:
+                out_idx[pos] = out_idx[pos - 1]
+                out_d2[pos] = out_d2[pos - 1]
+            pos -= 1
+        if pos < out_idx.shape[0]:
+            out_idx[pos] = k
+            out_d2[pos] = d2
+            if count < out_idx.shape[0]:
+                count += 1
+    return count
+
+
+@njit(cache=True)
+def propagate_covariance(cov_prev, pose_prev, z, z_cov, out):
+    """Covariance of ``pose_prev ⊕ z`` (world frame) from those of the two, linearised."""
+    c = math.cos(pose_prev[2])
+    s = math.sin(pose_prev[2])
+    # J_x: ∂(x ⊕ z)/∂x ; J_z: ∂(x ⊕ z)/∂z
+    jx = np.eye(3)
+    jx[0, 2] = -s * z[0] - c * z[1]
+    jx[1, 2] = c * z[0] - s * z[1]
+    jz = np.zeros((3, 3))
+    jz[0, 0] = c
+    jz[0, 1] = -s
+    jz[1, 0] = s
+    jz[1, 1] = c
+    jz[2, 2] = 1.0
+    out[:, :] = jx @ cov_prev @ jx.T + jz @ z_cov @ jz.T
+
+
+@dataclass(frozen=True)
+class LoopClosureConfig:
+    search_radius: float = 4.0  # m: candidates beyond this are never considered
+    exclude_recent: int = 10  # nodes just behind the new one are neighbours, not loops
+    max_candidates: int = 8  # gated candidates kept, closest first
+    max_attempts: int = 2  # alignments tried per new node
+    chi2_gate: float = 7.81  # χ²₃ at 95% on the new edge's own error after optimising
+    growth_limit: float = 2.0  # reject if the other edges' χ² grew by more than this factor...
+    growth_floor: float = 10.0  # ...and by more than this much in absolute terms
+    position_floor: float = 0.1  # m: minimum std of the relative position in the gate
+
+
+class LoopCloser:
+    """Buffers for candidate search, allocated once from the graph's capacity."""
+
+    def __init__(self, config: LoopClosureConfig, max_nodes: int):
+        self.config = config
+        self._idx = np.zeros(config.max_candidates * 4, np.int64)
+        self._d2 = np.zeros(config.max_candidates * 4)
+        self.attempts = 0
+        self.accepted = 0
+        self.rejected_match = 0
+        self.rejected_consistency = 0
+
+    def candidates(self, graph, node_cov, node: int) -> list[int]:
+        """Steps 1–2: nearby nodes inside the 95% ellipse of the relative position."""
+        c = self.config
+        p = graph.poses[node]
+        n = nearby_nodes(graph.poses, graph.n_nodes, p[0], p[1], c.search_radius,
+                         node - c.exclude_recent, self._idx, self._d2)
+        gated = []
+        floor = c.position_floor**2
+        for k in self._idx[:n]:
+            # Relative covariance along the chain from k to node (both from node 0).
+            rel = node_cov[node, :2, :2] - node_cov[k, :2, :2]
+            rel = 0.5 * (rel + rel.T) + floor * np.eye(2)
+            d = graph.poses[node, :2] - graph.poses[k, :2]
+            try:
+                m2 = float(d @ np.linalg.solve(rel, d))
+            except np.linalg.LinAlgError:
+                continue
+            if m2 <= CHI2_2D_95:
+                gated.append(int(k))
+            if len(gated) >= c.max_candidates:
+                break
+        return gated
+
+    def consistent(self, graph, edge: int, others_before: float) -> bool:
+        """Step 3's test, after optimising with the new edge."""
+        c = self.config
+        chi2 = graph.edge_chi2()
+        own = float(chi2[edge])
+        others = float(np.sum(chi2)) - own
+        grew = others > max(c.growth_limit * others_before, others_before + c.growth_floor)
+        return own <= c.chi2_gate and not grew
+
+
+def relative_guess(graph, i: int, j: int) -> np.ndarray:
+    """The graph's current estimate of node ``j`` in node ``i``'s frame."""
+    return between(graph.poses[j], graph.poses[i])

@@ -1,0 +1,230 @@
+"""Graph SLAM with swarm scan matching: the whole loop of Alg. 4 (method.md §6).
+
+    slam = GraphSlam(SlamConfig())
+    for scan, odometry in stream:
+        pose = slam.step(scan, odometry)      # odometry optional, as in the paper
+    grid = slam.global_map()
+
+Each scan is aligned (Alg. 5) with the scan of the newest node, its keyframe, rather than with
+the previous scan: the search starts from the last estimate moved by the odometry (or, with
+none, by the last motion the scans showed), and matching every scan against the same keyframe
+keeps the error between two nodes to one match instead of a sum of many. Nodes are added by
+Alg. 6, loops sought by Alg. 7 at each new node, and the graph re-optimised when one closes.
+Capacities (nodes, edges, points per stored scan, trajectory length) are fixed at start-up.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from runtime.graph_optimizer import GaussNewton
+from runtime.loop_closure import LoopCloser, LoopClosureConfig, propagate_covariance, relative_guess
+from runtime.occupancy_grid import OccupancyGrid
+from runtime.pose import between, compose
+from runtime.pose_graph import LOOP, ODOMETRY, CapacityError, PoseGraph, information_from_sigma
+from runtime.scan import PointScan
+from runtime.scan_matcher import MatcherConfig, ScanMatcher
+
+
+@dataclass(frozen=True)
+class SlamConfig:
+    matcher: MatcherConfig = field(default_factory=MatcherConfig)
+    # Alg. 6: a node when the motion since the last one exceeds either.
+    node_distance: float = 0.5  # m
+    node_angle: float = 0.5  # rad
+    # Edge information. "fixed": diag(1/σt², 1/σt², 1/σθ²) with the values below; "paper":
+    # Eq. 20, I/σλ², with σλ the matcher's running deviation (unitless: it weighs metres and
+    # radians alike and scales χ² by λ's units, so the χ² gates lose their meaning).
+    information: str = "fixed"
+    sigma_translation: float = 0.05  # m
+    sigma_rotation: float = 0.02  # rad
+    loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
+    loop_window: tuple[float, float, float] = (1.0, 1.0, 0.5)  # search box around the graph
+    max_nodes: int = 5000
+    max_edges: int = 20000
+    max_points: int = 1440  # per stored scan
+    max_scans: int = 100000  # trajectory length kept (poses per scan)
+    map_resolution: float = 0.05
+    map_max_range: float = 30.0
+
+
+@dataclass
+class StepResult:
+    pose: np.ndarray  # the scan's pose in the world (the first scan's frame)
+    node_added: bool
+    loop_closed: bool
+    error: float  # λ of the alignment
+
+
+class GraphSlam:
+    def __init__(self, config: SlamConfig | None = None, seed: int = 0):
+        self.config = c = config or SlamConfig()
+        if c.information not in ("fixed", "paper"):
+            raise ValueError(f"information must be 'fixed' or 'paper', got {c.information!r}")
+        self.matcher = ScanMatcher(c.matcher, seed=seed)
+        self.loop_matcher = ScanMatcher(replace(c.matcher, guess_window=c.loop_window), seed=seed + 1)
+        self.graph = PoseGraph(c.max_nodes, c.max_edges)
+        self.optimizer = GaussNewton(self.graph)
+        self.loops = LoopCloser(c.loop_closure, c.max_nodes)
+        self.keyframe_reference = self.matcher.new_reference()
+        self.loop_reference = self.loop_matcher.new_reference()
+        self.node_points = np.zeros((c.max_nodes, c.max_points, 2))
+        self.node_counts = np.zeros(c.max_nodes, np.int64)
+        self.node_cov = np.zeros((c.max_nodes, 3, 3))
+        self._loop_scan = PointScan(c.max_points)
+        # Per-scan trajectory: the node a scan was matched to, and its pose in that node's frame.
+        self.scan_node = np.zeros(c.max_scans, np.int64)
+        self.scan_rel = np.zeros((c.max_scans, 3))
+        self.scan_stamp = np.zeros(c.max_scans)
+        self.n_scans = 0
+        self.keyframe = -1
+        self.rel = np.zeros(3)  # the current pose in the keyframe's frame
+        self.motion = np.zeros(3)  # last motion between scans, for a scan-only prediction
+        self.last_odometry = None
+        self.status = "ok"
+
+    # ------------------------------------------------------------------ Alg. 4
+    def step(self, scan: PointScan, odometry=None, stamp: float = 0.0) -> StepResult:
+        """Process one scan (points in the robot frame); ``odometry`` is the robot's odometry
+        pose at the scan, if any. Returns the scan's estimated pose."""
+        if self.keyframe < 0:
+            self._start(scan, odometry, stamp)
+            return StepResult(self.graph.poses[0].copy(), True, False, 0.0)
+        guess = compose(self.rel, self._predicted_motion(odometry))
+        match = self.matcher.align_scans(scan, self.keyframe_reference, guess)  # Alg. 5
+        self.motion = between(match.pose, self.rel)
+        self.rel = match.pose
+        node_added = self.update_graph(scan, stamp)  # Alg. 6
+        loop_closed = node_added and self.seek_loop_closure(self.keyframe)  # Alg. 7
+        if loop_closed:
+            self.optimize_graph()  # Eq. 21
+        self._record(stamp)
+        return StepResult(self.pose(), node_added, loop_closed, match.error)
+
+    def pose(self) -> np.ndarray:
+        return compose(self.graph.poses[self.keyframe], self.rel)
+
+    # ------------------------------------------------------------------ Alg. 6
+    def update_graph(self, scan: PointScan, stamp: float) -> bool:
+        c = self.config
+        if math.hypot(self.rel[0], self.rel[1]) <= c.node_distance and abs(self.rel[2]) <= c.node_angle:
+            return False
+        g = self.graph
+        if g.n_nodes >= g.max_nodes or g.n_edges >= g.max_edges:
+            self.status = "capacity reached: localising against the last node, map frozen"
+            return False
+        previous = self.keyframe
+        node = g.add_node(compose(g.poses[previous], self.rel), stamp)
+        info = self._information()
+        g.add_edge(previous, node, self.rel, info, ODOMETRY)
+        propagate_covariance(self.node_cov[previous], g.poses[previous], self.rel,
+                             np.linalg.inv(info), self.node_cov[node])
+        self._store_scan(node, scan)
+        self.matcher.build_reference(scan, self.keyframe_reference)
+        self.keyframe = node
+        self.rel = np.zeros(3)
+        return True
+
+    # ------------------------------------------------------------------ Alg. 7
+    def seek_loop_closure(self, node: int) -> bool:
+        g, loops = self.graph, self.loops
+        scan = self._loop_scan
+        for candidate in loops.candidates(g, self.node_cov, node)[: loops.config.max_attempts]:
+            if g.n_edges >= g.max_edges:
+                self.status = "capacity reached: no more loop closures"
+                return False
+            loops.attempts += 1
+            self._load_scan(candidate, scan)
+            reference = self.loop_matcher.build_reference(scan, self.loop_reference)
+            self._load_scan(node, scan)
+            match = self.loop_matcher.align_scans(scan, reference, relative_guess(g, candidate, node))
+            if match.error > self.matcher.threshold.rejection_threshold:
+                loops.rejected_match += 1
+                continue
+            others_before = g.chi2()
+            saved = g.poses[: g.n_nodes].copy()
+            edge = g.add_edge(candidate, node, match.pose, self._information(), LOOP)
+            self.optimize_graph()
+            if loops.consistent(g, edge, others_before):
+                loops.accepted += 1
+                return True
+            g.remove_last_edge()
+            g.poses[: g.n_nodes] = saved
+            loops.rejected_consistency += 1
+        return False
+
+    def optimize_graph(self):
+        return self.optimizer.optimize()
+
+    # ------------------------------------------------------------------ on halt
+    def global_map(self) -> OccupancyGrid:
+        """Occupancy grid from the optimised node poses and their stored scans."""
+        c, g = self.config, self.graph
+        n = g.n_nodes
+        corners = [g.poses[:n, :2]]
+        for k in range(n):
+            pts = self.node_points[k, : self.node_counts[k]]
+            near = pts[np.hypot(pts[:, 0], pts[:, 1]) <= c.map_max_range]
+            if len(near):
+                corners.append(compose(g.poses[k], np.c_[near, np.zeros(len(near))])[:, :2])
+        grid = OccupancyGrid.covering(np.vstack(corners), c.map_resolution)
+        for k in range(n):
+            grid.integrate(g.poses[k], self.node_points[k, : self.node_counts[k]], c.map_max_range)
+        return grid
+
+    def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
+        """Timestamps and optimised poses of every scan recorded."""
+        n = self.n_scans
+        poses = compose(self.graph.poses[self.scan_node[:n]], self.scan_rel[:n])
+        return self.scan_stamp[:n].copy(), poses
+
+    # ------------------------------------------------------------------ helpers
+    def _start(self, scan, odometry, stamp):
+        self.graph.add_node(np.zeros(3), stamp)  # the first scan's frame is the world frame
+        self._store_scan(0, scan)
+        self.matcher.build_reference(scan, self.keyframe_reference)
+        self.keyframe = 0
+        self.last_odometry = None if odometry is None else np.asarray(odometry, dtype=float)
+        self._record(stamp)
+
+    def _predicted_motion(self, odometry):
+        if odometry is None:
+            return self.motion  # scans only: assume the last motion continues
+        odometry = np.asarray(odometry, dtype=np.float64)
+        delta = np.zeros(3) if self.last_odometry is None else between(odometry, self.last_odometry)
+        self.last_odometry = odometry
+        return delta
+
+    def _information(self) -> np.ndarray:
+        c = self.config
+        if c.information == "paper":
+            sigma = self.matcher.threshold.std
+            return information_from_sigma(sigma if sigma > 0 else 1.0)
+        return np.diag([1 / c.sigma_translation**2, 1 / c.sigma_translation**2,
+                        1 / c.sigma_rotation**2])
+
+    def _store_scan(self, node, scan):
+        n = min(scan.count, self.config.max_points)
+        self.node_points[node, :n] = scan.buffer[:n]
+        self.node_counts[node] = n
+
+    def _load_scan(self, node, scan):
+        n = self.node_counts[node]
+        scan.buffer[:n] = self.node_points[node, :n]
+        scan.count = n
+
+    def _record(self, stamp):
+        k = self.n_scans
+        if k >= self.scan_node.shape[0]:
+            self.status = "trajectory capacity reached: poses no longer recorded"
+            return
+        self.scan_node[k] = self.keyframe
+        self.scan_rel[k] = self.rel
+        self.scan_stamp[k] = stamp
+        self.n_scans += 1
+
+
+__all__ = ["GraphSlam", "SlamConfig", "StepResult", "CapacityError", "LOOP"]

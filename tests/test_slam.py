@@ -1,0 +1,136 @@
+"""Graph SLAM end to end on synthetic scans with known poses, loop closure, map, metric."""
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from runtime.demo import loop_path
+from runtime.map_io import read_pgm, write_map
+from runtime.metrics import kummerle
+from runtime.pose import between, compose
+from runtime.relations import Relations, RelationsFormatError, read_relations
+from runtime.scan import PointScan
+from runtime.pose_graph import LOOP
+from runtime.slam import GraphSlam, SlamConfig
+from runtime.synthetic import room_world, scan_at
+
+ANGLES = np.deg2rad(np.arange(-180, 180, 1.0))
+
+
+def run(steps=100, laps=1.25, odometry_noise=(0.02, 0.02, 0.01), seed=0, config=None):
+    """Drive 1¼ laps of the demo loop: the second pass over the start closes a loop."""
+    truth = loop_path(int(steps / laps))
+    truth = np.vstack([truth] * 2)[:steps]
+    world = room_world(seed, size=(12.0, 9.0), boxes=14, walls=0, keep_clear=truth)
+    rng = np.random.default_rng(seed)
+    slam = GraphSlam(config or SlamConfig(), seed=seed)
+    odom = truth[0].copy()
+    scan = PointScan(len(ANGLES))
+    for k in range(steps):
+        if k:  # noisy wheel odometry, integrated
+            odom = compose(odom, between(truth[k], truth[k - 1]) + rng.normal(0, odometry_noise))
+        scan.set_ranges(scan_at(world, truth[k], ANGLES, 12.0, 0.01, rng), ANGLES, 0.05, 12.0)
+        slam.step(scan, odom, stamp=float(k))
+    # The SLAM's world frame is the first scan's: express the truth in it.
+    return slam, between(truth, truth[0]), odom
+
+
+def test_loop_closes_and_optimised_trajectory_recovers_the_truth():
+    slam, truth, _ = run()
+    stamps, poses = slam.trajectory()
+    err = np.hypot(*(poses[:, :2] - truth[:, :2]).T)
+    assert slam.loops.accepted >= 1
+    assert np.sum(slam.graph.kind[: slam.graph.n_edges] == LOOP) == slam.loops.accepted
+    assert err.max() < 0.15 and err.mean() < 0.05, (err.max(), err.mean())
+    assert np.allclose(stamps, np.arange(len(truth)))
+
+
+def test_runs_on_scans_alone_as_in_the_paper():
+    slam = GraphSlam(SlamConfig(), seed=0)
+    world = room_world(0, size=(12.0, 9.0), boxes=14, walls=0, keep_clear=loop_path(80))
+    scan = PointScan(len(ANGLES))
+    path = loop_path(80)[:40]
+    for k in range(40):
+        scan.set_ranges(scan_at(world, path[k], ANGLES, 12.0, 0.01), ANGLES, 0.05, 12.0)
+        slam.step(scan, None, float(k))
+    _, poses = slam.trajectory()
+    err = np.hypot(*(poses[:, :2] - between(path, path[0])[:, :2]).T)
+    assert err.max() < 0.15
+
+
+def test_false_loop_candidate_is_rejected_and_graph_restored():
+    slam, _, _ = run(steps=60, laps=0.7)  # no real loop yet
+    g = slam.graph
+    assert g.n_nodes > 12
+    node = g.n_nodes - 1
+    victim = 0
+    # Make an old node a plausible candidate: place it beside the newest one, and give it the
+    # scan of a different room, as a mistaken place recognition would.
+    g.poses[victim] = compose(g.poses[node], [0.3, 0.0, 0.0])
+    other = room_world(99, size=(7.0, 11.0), boxes=5, walls=2)
+    wrong = PointScan(len(ANGLES)).set_ranges(scan_at(other, [3.0, 5.0, 1.0], ANGLES, 12.0),
+                                              ANGLES, 0.05, 12.0)
+    slam._store_scan(victim, wrong)
+    edges, poses = g.n_edges, g.poses[: g.n_nodes].copy()
+    assert victim in slam.loops.candidates(g, slam.node_cov, node)
+    assert slam.seek_loop_closure(node) is False
+    assert g.n_edges == edges and np.array_equal(g.poses[: g.n_nodes], poses)
+    assert slam.loops.rejected_match + slam.loops.rejected_consistency >= 1
+
+
+def test_capacity_reached_keeps_localising():
+    slam, truth, _ = run(steps=40, config=SlamConfig(max_nodes=5, max_edges=8))
+    assert slam.graph.n_nodes == 5 and "capacity reached" in slam.status
+    _, poses = slam.trajectory()
+    assert len(poses) == 40 and np.all(np.isfinite(poses))
+
+
+def test_global_map_ros_format(tmp_path):
+    slam, _, _ = run(steps=30, laps=0.3)
+    paths = write_map(tmp_path / "map", slam.global_map())
+    img = read_pgm(paths["pgm"])
+    assert set(np.unique(img)) <= {0, 205, 254} and {0, 254} <= set(np.unique(img))
+    yaml = Path(paths["yaml"]).read_text()
+    for key in ("image: map.pgm", "resolution: 0.05", "origin: [", "occupied_thresh: 0.65",
+                "free_thresh: 0.196", "negate: 0"):
+        assert key in yaml
+
+
+def test_kummerle_metric_known_errors():
+    stamps = np.arange(5.0)
+    truth = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.1], [3, 1, 0.2], [3, 2, 0.3]], float)
+    rel = Relations(stamps[:-1], stamps[1:], between(truth[1:], truth[:-1]))
+    exact = kummerle(stamps, truth, rel)
+    assert exact["eT"] < 1e-12 and exact["eR_deg"] < 1e-10 and exact["relations_used"] == 4
+    moved = truth.copy()
+    moved[4] = compose(truth[4], [0.1, 0.0, np.deg2rad(2.0)])  # only the last relation is off
+    m = kummerle(stamps, moved, rel)
+    assert np.isclose(m["eT"], 0.1 / 4) and np.isclose(m["eR_deg"], 2.0 / 4)
+    with pytest.raises(ValueError, match="no relation"):
+        kummerle(stamps + 100, truth, rel)
+
+
+def test_relations_reader_rejects_malformed_lines(tmp_path):
+    p = tmp_path / "r.relations"
+    p.write_text("1.0 2.0 0.1 0.2 0 0 0 0.3\n3.0 4.0 0.1 oops 0 0 0 0.3\n")
+    with pytest.raises(RelationsFormatError) as info:
+        read_relations(p)
+    assert info.value.line == 2 and info.value.field == "y" and "r.relations:2:" in str(info.value)
+    p.write_text("1.0 2.0 0.1\n")
+    with pytest.raises(RelationsFormatError, match="expected 8 fields"):
+        read_relations(p)
+
+
+DATA = Path(os.environ.get("SWARMSLAM_DATASETS", Path(__file__).parents[1] / ".." / "shared" / "datasets"))
+
+
+@pytest.mark.skipif(not (DATA / "radish" / "intel.clf.gz").exists(),
+                    reason=f"integration data absent: {DATA / 'radish' / 'intel.clf.gz'}")
+def test_intel_first_scans_stay_bounded():
+    from runtime.replay import replay
+
+    m = replay(DATA / "radish" / "intel.clf.gz", DATA / "radish" / "intel.relations", limit=400)
+    assert m["relations_used"] >= 20
+    assert m["eT"] < 0.1 and m["eR_deg"] < 1.0, m
