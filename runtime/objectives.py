@@ -78,3 +78,26 @@ def scan_to_map_cost(grid, meta, pts, n, x, y, t, half):
             body += 255.0 - _cell(grid, meta, x + k * res, y + l * res)
     side = 2 * half + 1
     return beams / 255.0 + body / (255.0 * side * side)
+
+
+@njit(cache=True)
+def inlier_fraction(field, meta, pts, n, x, y, t, max_cost):
+    """Share of the points whose per-point cost at ``ΔP`` is at most ``max_cost`` (with the
+    Cauchy field, ``log(1 + k²)`` counts points within ``k·c`` of the reference surface)."""
+    if n == 0:
+        return 0.0
+    inv = meta[INV_RES]
+    c = math.cos(t) * inv
+    s = math.sin(t) * inv
+    gx0 = (x - meta[OX]) * inv
+    gy0 = (y - meta[OY]) * inv
+    last_x = int(meta[NX]) - 1
+    last_y = int(meta[NY]) - 1
+    far = meta[R2]
+    inliers = 0
+    for i in range(n):
+        gx = gx0 + c * pts[i, 0] - s * pts[i, 1]
+        gy = gy0 + s * pts[i, 0] + c * pts[i, 1]
+        if lookup_grid(field, gx, gy, last_x, last_y, far) <= max_cost:
+            inliers += 1
+    return inliers / n

@@ -21,7 +21,7 @@ from numba import njit
 
 from runtime.distance_field import N_META, build_distance_field
 from runtime.local_map import build_local_map, robot_square
-from runtime.objectives import KERNELS, scan_to_map_cost, scan_to_scan_error
+from runtime.objectives import KERNELS, inlier_fraction, scan_to_map_cost, scan_to_scan_error
 from runtime.optimizers import SwarmConfig, SwarmOptimizer, ask, start, tell
 from runtime.optimizers.workspace import BEST_VAL, EVALUATIONS, ITERATION, reset_run
 from runtime.scan import PointScan
@@ -366,3 +366,12 @@ class ScanMatcher:
             iterations=int(out[R_ITERATIONS]),
             evaluations=int(out[R_EVALUATIONS]),
         )
+
+    def inlier_fraction(self, scan: PointScan, reference: ReferenceMaps, pose,
+                        distance: float) -> float:
+        """Share of ``scan``'s points within ``distance`` of the reference surface at ``pose``."""
+        c = self.config
+        d2 = distance * distance
+        cost = math.log1p(d2 / c.cauchy_scale**2) if c.kernel == "cauchy" else d2
+        return float(inlier_fraction(reference.field, reference.meta, scan.buffer, scan.count,
+                                     float(pose[0]), float(pose[1]), float(pose[2]), cost))

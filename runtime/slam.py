@@ -42,7 +42,12 @@ class SlamConfig:
     sigma_translation: float = 0.05  # m
     sigma_rotation: float = 0.02  # rad
     loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
-    loop_window: tuple[float, float, float] = (1.0, 1.0, 0.5)  # search box around the graph
+    loop_window: tuple[float, float, float] = (2.0, 2.0, 0.5)  # search box around the graph
+    # Tracking: a match with fewer inliers than this (points within 0.2 m of the keyframe's
+    # surfaces) is not believed when odometry can stand in for it; the next node's edge then
+    # carries 1/weak_information_factor of the information.
+    min_track_inliers: float = 0.5
+    weak_information_factor: float = 9.0
     max_nodes: int = 5000
     max_edges: int = 20000
     max_points: int = 1440  # per stored scan
@@ -84,6 +89,8 @@ class GraphSlam:
         self.rel = np.zeros(3)  # the current pose in the keyframe's frame
         self.motion = np.zeros(3)  # last motion between scans, for a scan-only prediction
         self.last_odometry = None
+        self.weak = False  # a match since the last node was replaced by odometry
+        self.lost_matches = 0
         self.status = "ok"
 
     # ------------------------------------------------------------------ Alg. 4
@@ -95,8 +102,12 @@ class GraphSlam:
             return StepResult(self.graph.poses[0].copy(), True, False, 0.0)
         guess = compose(self.rel, self._predicted_motion(odometry))
         match = self.matcher.align_scans(scan, self.keyframe_reference, guess)  # Alg. 5
-        self.motion = between(match.pose, self.rel)
-        self.rel = match.pose
+        pose = match.pose
+        if odometry is not None and self._lost(scan, pose):
+            pose = guess  # the match is no better than a guess: trust the wheels
+            self.weak = True
+        self.motion = between(pose, self.rel)
+        self.rel = pose
         node_added = self.update_graph(scan, stamp)  # Alg. 6
         loop_closed = node_added and self.seek_loop_closure(self.keyframe)  # Alg. 7
         if loop_closed:
@@ -119,6 +130,9 @@ class GraphSlam:
         previous = self.keyframe
         node = g.add_node(compose(g.poses[previous], self.rel), stamp)
         info = self._information()
+        if self.weak:
+            info = info / self.config.weak_information_factor
+            self.weak = False
         g.add_edge(previous, node, self.rel, info, ODOMETRY)
         propagate_covariance(self.node_cov[previous], g.poses[previous], self.rel,
                              np.linalg.inv(info), self.node_cov[node])
@@ -141,14 +155,15 @@ class GraphSlam:
             reference = self.loop_matcher.build_reference(scan, self.loop_reference)
             self._load_scan(node, scan)
             match = self.loop_matcher.align_scans(scan, reference, relative_guess(g, candidate, node))
-            if match.error > self.matcher.threshold.rejection_threshold:
+            if self.loop_matcher.inlier_fraction(scan, reference, match.pose,
+                                                 loops.config.inlier_distance) < loops.config.min_inliers:
                 loops.rejected_match += 1
                 continue
-            others_before = g.chi2()
+            total_before = g.chi2()
             saved = g.poses[: g.n_nodes].copy()
             edge = g.add_edge(candidate, node, match.pose, self._information(), LOOP)
             self.optimize_graph()
-            if loops.consistent(g, edge, others_before):
+            if loops.consistent(g, edge, total_before):
                 loops.accepted += 1
                 return True
             g.remove_last_edge()
@@ -189,6 +204,13 @@ class GraphSlam:
         self.keyframe = 0
         self.last_odometry = None if odometry is None else np.asarray(odometry, dtype=float)
         self._record(stamp)
+
+    def _lost(self, scan, pose) -> bool:
+        share = self.matcher.inlier_fraction(scan, self.keyframe_reference, pose, 0.2)
+        if share < self.config.min_track_inliers:
+            self.lost_matches += 1
+            return True
+        return False
 
     def _predicted_motion(self, odometry):
         if odometry is None:
