@@ -26,17 +26,14 @@ from pathlib import Path
 import numpy as np
 
 from runtime.pose import between
+from runtime.text_records import DataFormatError, records
 
 # Readings at or beyond this are "no return" in FLASER logs (Intel uses 81.83, ACES 50.0).
 FLASER_MAX_RANGE = 50.0
 
 
-class CarmenFormatError(ValueError):
+class CarmenFormatError(DataFormatError):
     """A line of a CARMEN log that cannot be read; says where and what."""
-
-    def __init__(self, path, line: int, field_name: str, problem: str):
-        self.path, self.line, self.field = str(path), line, field_name
-        super().__init__(f"{path}:{line}: {field_name}: {problem}")
 
 
 @dataclass
@@ -186,19 +183,15 @@ def read_carmen(path, max_range: float = FLASER_MAX_RANGE, sort: bool = True) ->
         raise FileNotFoundError(f"{path}: no such log file")
     lasers: list[LaserRecord] = []
     odometry: list[OdometryRecord] = []
-    with _open(path) as fh:
-        for lineno, text in enumerate(fh, start=1):
-            tokens = text.split()
-            if not tokens or tokens[0].startswith("#"):
-                continue
-            kind = tokens[0]
-            f = _Fields(path, lineno, tokens)
-            if kind == "FLASER":
-                lasers.append(_flaser(f, max_range))
-            elif kind == "ROBOTLASER1":
-                lasers.append(_robotlaser1(f))
-            elif kind == "ODOM":
-                odometry.append(_odom(f))
+    for lineno, tokens in records(path, _open):
+        kind = tokens[0]
+        f = _Fields(path, lineno, tokens)
+        if kind == "FLASER":
+            lasers.append(_flaser(f, max_range))
+        elif kind == "ROBOTLASER1":
+            lasers.append(_robotlaser1(f))
+        elif kind == "ODOM":
+            odometry.append(_odom(f))
     if not lasers:
         raise CarmenFormatError(path, 0, "FLASER/ROBOTLASER1", "the log has no laser scans")
     if sort:  # stable: equal timestamps keep file order

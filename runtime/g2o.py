@@ -7,38 +7,20 @@ Vertex ids may be any integers; they are mapped to consecutive node indices in f
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
 
 from runtime.pose_graph import LOOP, ODOMETRY, PoseGraph
+from runtime.text_records import DataFormatError, parse_numbers, records
 from runtime.writers import write_text_atomic
 
 
-class G2oFormatError(ValueError):
-    def __init__(self, path, line: int, field: str, problem: str):
-        self.path, self.line, self.field = str(path), line, field
-        super().__init__(f"{path}:{line}: {field}: {problem}")
+class G2oFormatError(DataFormatError):
+    pass
 
 
 _EDGE_FIELDS = ("i", "j", "dx", "dy", "dtheta", "I11", "I12", "I13", "I22", "I23", "I33")
-
-
-def _numbers(path, lineno, names, tokens):
-    if len(tokens) != len(names):
-        raise G2oFormatError(path, lineno, names[min(len(tokens), len(names) - 1)],
-                             f"expected {len(names)} values, got {len(tokens)}")
-    out = []
-    for name, tok in zip(names, tokens):
-        try:
-            v = float(tok)
-        except ValueError:
-            raise G2oFormatError(path, lineno, name, f"not a number: {tok!r}") from None
-        if not math.isfinite(v):
-            raise G2oFormatError(path, lineno, name, f"not finite: {tok!r}")
-        out.append(v)
-    return out
 
 
 def read_g2o(path, extra_nodes: int = 0, extra_edges: int = 0) -> tuple[PoseGraph, list]:
@@ -46,25 +28,20 @@ def read_g2o(path, extra_nodes: int = 0, extra_edges: int = 0) -> tuple[PoseGrap
     path = Path(path)
     ids: dict[int, int] = {}
     poses, edges = [], []
-    with open(path) as f:
-        for lineno, line in enumerate(f, start=1):
-            tokens = line.split()
-            if not tokens or tokens[0].startswith("#"):
-                continue
-            tag = tokens[0]
-            if tag == "VERTEX_SE2":
-                vid, x, y, t = _numbers(path, lineno, ("id", "x", "y", "theta"), tokens[1:])
-                if vid in ids:
-                    raise G2oFormatError(path, lineno, "id", f"vertex {int(vid)} defined twice")
-                ids[int(vid)] = len(poses)
-                poses.append((x, y, t))
-            elif tag == "EDGE_SE2":
-                v = _numbers(path, lineno, _EDGE_FIELDS, tokens[1:])
-                edges.append((lineno, v))
-            elif tag == "FIX":
-                continue
-            else:
-                raise G2oFormatError(path, lineno, "tag", f"unsupported element {tag!r}")
+    for lineno, tokens in records(path):
+        tag = tokens[0]
+        if tag == "VERTEX_SE2":
+            vid, x, y, t = parse_numbers(path, lineno, ("id", "x", "y", "theta"), tokens[1:],
+                                         G2oFormatError)
+            if vid in ids:
+                raise G2oFormatError(path, lineno, "id", f"vertex {int(vid)} defined twice")
+            ids[int(vid)] = len(poses)
+            poses.append((x, y, t))
+        elif tag == "EDGE_SE2":
+            edges.append((lineno, parse_numbers(path, lineno, _EDGE_FIELDS, tokens[1:],
+                                                G2oFormatError)))
+        elif tag != "FIX":
+            raise G2oFormatError(path, lineno, "tag", f"unsupported element {tag!r}")
     n_e = len(edges)
     ij = np.zeros((n_e, 2), np.int64)
     z = np.zeros((n_e, 3))

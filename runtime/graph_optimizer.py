@@ -27,7 +27,7 @@ from numba import njit
 from scipy.sparse.linalg import splu
 
 from runtime.pose import wrap_angle_nb
-from runtime.pose_graph import PoseGraph
+from runtime.pose_graph import PoseGraph, edge_error
 
 
 @njit(cache=True)
@@ -52,11 +52,7 @@ def assemble(poses, ij, z, info, rows, cols, vals, b):
         sz = math.sin(z[k, 2])
         dx = poses[j, 0] - poses[i, 0]
         dy = poses[j, 1] - poses[i, 1]
-        ux = ci * dx + si * dy - z[k, 0]
-        uy = -si * dx + ci * dy - z[k, 1]
-        e[0] = cz * ux + sz * uy  # Eq. 18
-        e[1] = -sz * ux + cz * uy
-        e[2] = wrap_angle_nb(poses[j, 2] - poses[i, 2] - z[k, 2])
+        e[0], e[1], e[2] = edge_error(poses, i, j, z[k, 0], z[k, 1], z[k, 2])  # Eq. 18
         # M = R_zᵀ R_iᵀ; ∂e_t/∂t_j = M, ∂e_t/∂t_i = −M, ∂e_t/∂θ_i = R_zᵀ dR_iᵀ/dθ (t_j − t_i)
         m00 = cz * ci - sz * si
         m01 = cz * si + sz * ci

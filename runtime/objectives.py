@@ -28,6 +28,18 @@ KERNELS = {"paper": KERNEL_PAPER, "cauchy": KERNEL_CAUCHY}
 FAST = {"contract", "reassoc", "nsz", "arcp"}
 
 
+@njit(cache=True, inline="always")
+def _grid_frame(meta, x, y, t):
+    """Eq. 5 folded into grid units: a point (px, py) lands at
+    ``(gx0 + c·px − s·py, gy0 + s·px + c·py)``; also the grid's last indices and far cost."""
+    inv = meta[INV_RES]
+    c = math.cos(t) * inv
+    s = math.sin(t) * inv
+    gx0 = (x - meta[OX]) * inv
+    gy0 = (y - meta[OY]) * inv
+    return c, s, gx0, gy0, int(meta[NX]) - 1, int(meta[NY]) - 1, meta[R2]
+
+
 @njit(cache=True, fastmath=FAST)
 def scan_to_scan_error(field, meta, pts, n, stride, x, y, t, kernel):
     """Eq. 14 (or its per-point Cauchy variant) over every ``stride``-th of the first ``n`` points.
@@ -36,14 +48,7 @@ def scan_to_scan_error(field, meta, pts, n, stride, x, y, t, kernel):
     differ only in the outer logarithm Eq. 14 puts around the sum. Points are moved by ``ΔP``
     (Eq. 5) straight into grid coordinates.
     """
-    inv = meta[INV_RES]
-    c = math.cos(t) * inv
-    s = math.sin(t) * inv
-    gx0 = (x - meta[OX]) * inv
-    gy0 = (y - meta[OY]) * inv
-    last_x = int(meta[NX]) - 1
-    last_y = int(meta[NY]) - 1
-    far = meta[R2]
+    c, s, gx0, gy0, last_x, last_y, far = _grid_frame(meta, x, y, t)
     acc = 0.0
     for i in range(0, n, stride):
         gx = gx0 + c * pts[i, 0] - s * pts[i, 1]
@@ -86,14 +91,7 @@ def inlier_fraction(field, meta, pts, n, x, y, t, max_cost):
     Cauchy field, ``log(1 + k²)`` counts points within ``k·c`` of the reference surface)."""
     if n == 0:
         return 0.0
-    inv = meta[INV_RES]
-    c = math.cos(t) * inv
-    s = math.sin(t) * inv
-    gx0 = (x - meta[OX]) * inv
-    gy0 = (y - meta[OY]) * inv
-    last_x = int(meta[NX]) - 1
-    last_y = int(meta[NY]) - 1
-    far = meta[R2]
+    c, s, gx0, gy0, last_x, last_y, far = _grid_frame(meta, x, y, t)
     inliers = 0
     for i in range(n):
         gx = gx0 + c * pts[i, 0] - s * pts[i, 1]

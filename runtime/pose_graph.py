@@ -27,24 +27,25 @@ class CapacityError(RuntimeError):
     """A fixed capacity of the graph is exhausted."""
 
 
+@njit(cache=True, inline="always")
+def edge_error(poses, i, j, zx, zy, zt):
+    """Eq. 18 for one edge ``i → j`` measuring ``(zx, zy, zt)``."""
+    ci = math.cos(poses[i, 2])
+    si = math.sin(poses[i, 2])
+    dx = poses[j, 0] - poses[i, 0]
+    dy = poses[j, 1] - poses[i, 1]
+    ux = ci * dx + si * dy - zx  # R_iᵀ (t_j − t_i) − t_z
+    uy = -si * dx + ci * dy - zy
+    cz = math.cos(zt)
+    sz = math.sin(zt)
+    return cz * ux + sz * uy, -sz * ux + cz * uy, wrap_angle_nb(poses[j, 2] - poses[i, 2] - zt)
+
+
 @njit(cache=True)
 def edge_errors(poses, ij, z, out):
     """Eq. 18 for every edge into ``out`` (E × 3)."""
     for k in range(ij.shape[0]):
-        i = ij[k, 0]
-        j = ij[k, 1]
-        ci = math.cos(poses[i, 2])
-        si = math.sin(poses[i, 2])
-        dx = poses[j, 0] - poses[i, 0]
-        dy = poses[j, 1] - poses[i, 1]
-        # R_iᵀ (t_j − t_i) − t_z
-        ux = ci * dx + si * dy - z[k, 0]
-        uy = -si * dx + ci * dy - z[k, 1]
-        cz = math.cos(z[k, 2])
-        sz = math.sin(z[k, 2])
-        out[k, 0] = cz * ux + sz * uy
-        out[k, 1] = -sz * ux + cz * uy
-        out[k, 2] = wrap_angle_nb(poses[j, 2] - poses[i, 2] - z[k, 2])
+        out[k, 0], out[k, 1], out[k, 2] = edge_error(poses, ij[k, 0], ij[k, 1], z[k, 0], z[k, 1], z[k, 2])
 
 
 @njit(cache=True)

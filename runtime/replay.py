@@ -67,7 +67,7 @@ def replay(log_path, relations_path=None, optimizer="abc", odometry=True, out_di
         "loops_accepted": slam.loops.accepted,
         "loops_rejected_match": slam.loops.rejected_match,
         "loops_rejected_consistency": slam.loops.rejected_consistency,
-        "matches_replaced_by_odometry": slam.lost_matches,
+        "matches_recovered": slam.lost_matches,
         "wall_seconds": wall,
         "data_seconds": data_seconds,
         "real_time_factor": data_seconds / wall if wall > 0 else float("inf"),

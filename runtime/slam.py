@@ -44,8 +44,9 @@ class SlamConfig:
     loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
     loop_window: tuple[float, float, float] = (2.0, 2.0, 0.5)  # search box around the graph
     # Tracking: a match with fewer inliers than this (points within 0.2 m of the keyframe's
-    # surfaces) is not believed when odometry can stand in for it; the next node's edge then
-    # carries 1/weak_information_factor of the information.
+    # surfaces) has lost track: with odometry its prediction stands in and the next node's
+    # edge carries 1/weak_information_factor of the information; on scans alone the match is
+    # retried over the whole search box.
     min_track_inliers: float = 0.5
     weak_information_factor: float = 9.0
     max_nodes: int = 5000
@@ -103,9 +104,8 @@ class GraphSlam:
         guess = compose(self.rel, self._predicted_motion(odometry))
         match = self.matcher.align_scans(scan, self.keyframe_reference, guess)  # Alg. 5
         pose = match.pose
-        if odometry is not None and self._lost(scan, pose):
-            pose = guess  # the match is no better than a guess: trust the wheels
-            self.weak = True
+        if self._inliers(scan, pose) < self.config.min_track_inliers:
+            pose = self._recover(scan, pose, guess, odometry is not None)
         self.motion = between(pose, self.rel)
         self.rel = pose
         node_added = self.update_graph(scan, stamp)  # Alg. 6
@@ -205,12 +205,20 @@ class GraphSlam:
         self.last_odometry = None if odometry is None else np.asarray(odometry, dtype=float)
         self._record(stamp)
 
-    def _lost(self, scan, pose) -> bool:
-        share = self.matcher.inlier_fraction(scan, self.keyframe_reference, pose, 0.2)
-        if share < self.config.min_track_inliers:
-            self.lost_matches += 1
-            return True
-        return False
+    def _inliers(self, scan, pose) -> float:
+        return self.matcher.inlier_fraction(scan, self.keyframe_reference, pose, 0.2)
+
+    def _recover(self, scan, pose, guess, have_odometry: bool):
+        """The guided match lost track. With odometry, its prediction stands in (the next
+        node's edge weakened): a wide search can lock onto a shifted pose along a corridor
+        (ACES: eT 0.048 → 0.092 m from one such recovery). On scans alone, search the whole box
+        without a guess — the swarm's strength — and keep the better fitting of the two."""
+        self.lost_matches += 1
+        if have_odometry:
+            self.weak = True
+            return guess
+        wide = self.matcher.align_scans(scan, self.keyframe_reference, None).pose
+        return max((pose, wide), key=lambda p: self._inliers(scan, p))
 
     def _predicted_motion(self, odometry):
         if odometry is None:

@@ -13,7 +13,7 @@ import math
 
 from numba import njit
 
-from runtime.optimizers.workspace import ALPHA, PHASE, clip, end_iteration, offer_best
+from runtime.optimizers.workspace import ask_every_member, ALPHA, PHASE, clip, end_iteration, offer_best
 from runtime.rng import normal, uniform
 
 ALPHA0, BETA0, GAMMA, ALPHA_DECAY = 0, 1, 2, 3
@@ -61,14 +61,9 @@ def _move(ws):
 
 @njit(cache=True)
 def fa_ask(ws):
-    n, dim = ws.pos.shape
     if ws.scal[PHASE] != 0.0:
         _move(ws)
-    for i in range(n):
-        ws.cand_idx[i] = i
-        for d in range(dim):
-            ws.cand[i, d] = ws.pos[i, d]
-    return n
+    return ask_every_member(ws)
 
 
 @njit(cache=True)

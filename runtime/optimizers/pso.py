@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from numba import njit
 
-from runtime.optimizers.workspace import PHASE, clip, end_iteration, offer_best
+from runtime.optimizers.workspace import ask_every_member, PHASE, clip, end_iteration, offer_best
 from runtime.rng import uniform
 
 W, C1, C2, V_MAX = 0, 1, 2, 3
@@ -31,12 +31,7 @@ def pso_start(ws):
 @njit(cache=True)
 def pso_ask(ws):
     """Every particle's position is evaluated each iteration."""
-    n, dim = ws.pos.shape
-    for i in range(n):
-        ws.cand_idx[i] = i
-        for d in range(dim):
-            ws.cand[i, d] = ws.pos[i, d]
-    return n
+    return ask_every_member(ws)
 
 
 @njit(cache=True)

@@ -151,3 +151,14 @@ def end_iteration(ws, values):
 @njit(cache=True, inline="always")
 def clip(v, lo, hi):
     return lo if v < lo else (hi if v > hi else v)
+
+
+@njit(cache=True)
+def ask_every_member(ws):
+    """Candidates = the members' current positions (PSO and FA evaluate all each iteration)."""
+    n, dim = ws.pos.shape
+    for i in range(n):
+        ws.cand_idx[i] = i
+        for d in range(dim):
+            ws.cand[i, d] = ws.pos[i, d]
+    return n
