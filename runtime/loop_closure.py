@@ -92,9 +92,9 @@ class LoopClosureConfig:
 
 
 class LoopCloser:
-    """Buffers for candidate search, allocated once from the graph's capacity."""
+    """Buffers for candidate search (allocated once) and the closure statistics."""
 
-    def __init__(self, config: LoopClosureConfig, max_nodes: int):
+    def __init__(self, config: LoopClosureConfig):
         self.config = config
         self._idx = np.zeros(config.max_candidates * 4, np.int64)
         self._d2 = np.zeros(config.max_candidates * 4)

@@ -24,7 +24,7 @@ from runtime.graph_optimizer import GaussNewton
 from runtime.loop_closure import LoopCloser, LoopClosureConfig, propagate_covariance, relative_guess
 from runtime.occupancy_grid import OccupancyGrid
 from runtime.pose import between, compose
-from runtime.pose_graph import LOOP, ODOMETRY, CapacityError, PoseGraph, information_from_sigma
+from runtime.pose_graph import LOOP, ODOMETRY, PoseGraph, information_from_sigma
 from runtime.scan import PointScan
 from runtime.scan_matcher import MatcherConfig, ScanMatcher
 
@@ -74,7 +74,7 @@ class GraphSlam:
         self.loop_matcher = ScanMatcher(replace(c.matcher, guess_window=c.loop_window), seed=seed + 1)
         self.graph = PoseGraph(c.max_nodes, c.max_edges)
         self.optimizer = GaussNewton(self.graph)
-        self.loops = LoopCloser(c.loop_closure, c.max_nodes)
+        self.loops = LoopCloser(c.loop_closure)
         self.keyframe_reference = self.matcher.new_reference()
         self.loop_reference = self.loop_matcher.new_reference()
         self.node_points = np.zeros((c.max_nodes, c.max_points, 2))
@@ -256,5 +256,3 @@ class GraphSlam:
         self.scan_stamp[k] = stamp
         self.n_scans += 1
 
-
-__all__ = ["GraphSlam", "SlamConfig", "StepResult", "CapacityError", "LOOP"]
