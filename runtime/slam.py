@@ -53,6 +53,9 @@ class SlamConfig:
     max_edges: int = 20000
     max_points: int = 1440  # per stored scan
     max_scans: int = 100000  # trajectory length kept (poses per scan)
+    # The keyframe reference is built from the last submap_nodes node scans, placed in the
+    # newest node's frame by the graph (1: the newest node's scan alone).
+    submap_nodes: int = 1
     map_resolution: float = 0.05
     map_max_range: float = 30.0
 
@@ -81,6 +84,7 @@ class GraphSlam:
         self.node_counts = np.zeros(c.max_nodes, np.int64)
         self.node_cov = np.zeros((c.max_nodes, 3, 3))
         self._loop_scan = PointScan(c.max_points)
+        self._submap = PointScan(c.max_points * max(c.submap_nodes, 1))
         # Per-scan trajectory: the node a scan was matched to, and its pose in that node's frame.
         self.scan_node = np.zeros(c.max_scans, np.int64)
         self.scan_rel = np.zeros((c.max_scans, 3))
@@ -137,7 +141,7 @@ class GraphSlam:
         propagate_covariance(self.node_cov[previous], g.poses[previous], self.rel,
                              np.linalg.inv(info), self.node_cov[node])
         self._store_scan(node, scan)
-        self.matcher.build_reference(scan, self.keyframe_reference)
+        self.matcher.build_reference(self._submap_of(node, scan), self.keyframe_reference)
         self.keyframe = node
         self.rel = np.zeros(3)
         return True
@@ -204,6 +208,23 @@ class GraphSlam:
         self.keyframe = 0
         self.last_odometry = None if odometry is None else np.asarray(odometry, dtype=float)
         self._record(stamp)
+
+    def _submap_of(self, node, scan):
+        """The newest node's scan, preceded by up to submap_nodes − 1 earlier node scans moved
+        into its frame (oldest first, so surfaces join within each scan)."""
+        k = self.config.submap_nodes
+        if k <= 1 or node == 0:
+            return scan
+        g, out, n = self.graph, self._submap, 0
+        for other in range(max(node - k + 1, 0), node):
+            m = self.node_counts[other]
+            rel = between(g.poses[other], g.poses[node])
+            pts = compose(rel, np.c_[self.node_points[other, :m], np.zeros(m)])[:, :2]
+            out.buffer[n : n + m] = pts
+            n += m
+        out.buffer[n : n + scan.count] = scan.buffer[: scan.count]
+        out.count = n + scan.count
+        return out
 
     def _inliers(self, scan, pose) -> float:
         return self.matcher.inlier_fraction(scan, self.keyframe_reference, pose, 0.2)

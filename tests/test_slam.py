@@ -152,3 +152,13 @@ def test_scans_only_recovers_after_a_gap_in_the_stream():
     err = np.hypot(*(poses[:, :2] - between(path[kept], path[0])[:, :2]).T)
     assert slam.lost_matches >= 1
     assert err.max() < 0.15, err.max()
+
+
+def test_submap_reference_tracks_and_closes_the_loop():
+    slam, truth, _ = run(config=SlamConfig(submap_nodes=4))
+    _, poses = slam.trajectory()
+    err = np.hypot(*(poses[:, :2] - truth[:, :2]).T)
+    assert slam.loops.accepted >= 1
+    assert err.max() < 0.15 and err.mean() < 0.05, (err.max(), err.mean())
+    # The reference really holds several scans: more points than the newest scan alone.
+    assert slam._submap.count > slam.node_counts[slam.keyframe]
