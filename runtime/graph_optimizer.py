@@ -222,6 +222,7 @@ class GaussNewton:
         start[:] = poses
         b, chi2 = self._system()
         initial = chi2
+        converged, iterations = False, 0
         for iterations in range(1, self.max_iterations + 1):
             apply_update(poses, self._solve(b, 0.0))
             b, new = self._system()

@@ -116,3 +116,11 @@ def test_g2o_errors_name_line_and_field(tmp_path, text, line, field):
         read_g2o(p)
     assert info.value.line == line and info.value.field == field
     assert f"bad.g2o:{line}:" in str(info.value)
+
+
+def test_zero_iterations_leaves_the_graph_as_it_was():
+    g, _ = noisy_loop_graph()
+    before = g.poses[: g.n_nodes].copy()
+    report = GaussNewton(g, max_iterations=0).optimize()
+    assert report.chi2 == report.chi2_initial
+    assert np.array_equal(g.poses[: g.n_nodes], before)

@@ -9,7 +9,6 @@ a scipy k-d tree, the local baseline.
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 import time
