@@ -187,7 +187,7 @@ class GaussNewton:
         rows, cols, vals = self._rows[: 36 * m], self._cols[: 36 * m], self._vals[: 36 * m]
         b = self._b[:size]
         chi2 = assemble(g.poses[:n], g.ij[:m], g.z[:m], g.info[:m], rows, cols, vals, b)
-        key = (n, m, id(g))
+        key = (id(g), n, g.revision)
         if key != self._pattern_key:  # new edge set: work the pattern out again
             self._pattern(rows, cols, size)
             self._pattern_key = key

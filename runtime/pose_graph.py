@@ -80,6 +80,9 @@ class PoseGraph:
         self._w = np.zeros(max_edges)
         self.n_nodes = 0
         self.n_edges = 0
+        # Bumped by every change of the edge set, so solvers can cache its sparsity pattern:
+        # removing an edge and adding another leaves the counts alike but the pattern not.
+        self.revision = 0
 
     @property
     def max_nodes(self) -> int:
@@ -109,12 +112,14 @@ class PoseGraph:
         self.info[k] = info
         self.kind[k] = kind
         self.n_edges += 1
+        self.revision += 1
         return k
 
     def remove_last_edge(self) -> None:
         if self.n_edges == 0:
             raise ValueError("no edge to remove")
         self.n_edges -= 1
+        self.revision += 1
 
     def errors(self) -> np.ndarray:
         """Eq. 18 for every edge, ``(E, 3)`` (a view of an internal buffer)."""

@@ -124,3 +124,24 @@ def test_zero_iterations_leaves_the_graph_as_it_was():
     report = GaussNewton(g, max_iterations=0).optimize()
     assert report.chi2 == report.chi2_initial
     assert np.array_equal(g.poses[: g.n_nodes], before)
+
+
+def test_swapping_an_edge_is_seen_by_the_cached_solver():
+    # A rejected loop edge is removed and another candidate's added: the counts are the same
+    # as before, the sparsity pattern is not. The reused optimizer must match a fresh one.
+    g, truth = noisy_loop_graph()
+    n = len(truth)
+    true_loop = (g.z[g.n_edges - 1].copy(), g.info[g.n_edges - 1].copy())
+    g.remove_last_edge()
+    start = g.poses[:n].copy()
+    gn = GaussNewton(g)
+    g.add_edge(n - 1, 5, [0.0, 0.0, 0.0], 100 * np.eye(3), LOOP)  # a wrong candidate
+    gn.optimize()
+    g.remove_last_edge()
+    g.poses[:n] = start
+    g.add_edge(n - 1, 0, *true_loop, LOOP)
+    cached = gn.optimize()
+    fresh_graph, _ = noisy_loop_graph()
+    fresh = GaussNewton(fresh_graph).optimize()
+    assert np.isclose(cached.chi2, fresh.chi2, rtol=1e-9)
+    assert np.allclose(g.poses[:n], fresh_graph.poses[:n], atol=1e-9)
