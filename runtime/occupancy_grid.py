@@ -18,9 +18,11 @@ L_MIN, L_MAX = -4.0, 4.0
 
 
 @njit(cache=True)
-def integrate_scan(logodds, origin_x, origin_y, res, pose, pts, n, max_range):
-    """Add one scan (sensor-frame points) seen from ``pose`` to the log-odds grid."""
+def integrate_scan(logodds, region, origin_x, origin_y, res, pose, pts, n, max_range):
+    """Add one scan (sensor-frame points) seen from ``pose`` to the log-odds grid; returns how
+    many cells of ``region`` (nonzero cells of a uint8 grid) it made known for the first time."""
     h, w = logodds.shape
+    newly_known = 0
     c = math.cos(pose[2])
     s = math.sin(pose[2])
     x0 = int(math.floor((pose[0] - origin_x) / res))
@@ -46,6 +48,8 @@ def integrate_scan(logodds, origin_x, origin_y, res, pose, pts, n, max_range):
             if x == x1 and y == y1:
                 break
             if 0 <= x < w and 0 <= y < h:
+                if logodds[y, x] == 0.0 and region[y, x]:
+                    newly_known += 1
                 logodds[y, x] = max(L_MIN, logodds[y, x] + L_FREE)
             e2 = 2 * err
             if e2 >= dy:
@@ -55,7 +59,10 @@ def integrate_scan(logodds, origin_x, origin_y, res, pose, pts, n, max_range):
                 err += dx
                 y += sy
         if 0 <= x1 < w and 0 <= y1 < h:
+            if logodds[y1, x1] == 0.0 and region[y1, x1]:
+                newly_known += 1
             logodds[y1, x1] = min(L_MAX, logodds[y1, x1] + L_OCC - L_FREE)
+    return newly_known
 
 
 class OccupancyGrid:
@@ -65,6 +72,8 @@ class OccupancyGrid:
         if width < 1 or height < 1 or not resolution > 0:
             raise ValueError(f"bad grid size {width}×{height} at {resolution} m")
         self.logodds = np.zeros((height, width), np.float32)
+        # cells whose first observation integrate() counts (e.g. a simulator's reachable area)
+        self.region = np.ones((height, width), np.uint8)
         self.resolution = float(resolution)
         self.origin = np.array(origin, dtype=np.float64)
 
@@ -78,10 +87,12 @@ class OccupancyGrid:
         size = np.ceil((hi - lo) / res).astype(int) + 1
         return cls(int(size[0]), int(size[1]), res, lo)
 
-    def integrate(self, pose, points, max_range: float = np.inf) -> None:
+    def integrate(self, pose, points, max_range: float = np.inf) -> int:
+        """Add a scan; returns the number of ``region`` cells it observed for the first time."""
         pts = np.asarray(points, dtype=np.float64)
-        integrate_scan(self.logodds, self.origin[0], self.origin[1], self.resolution,
-                       np.asarray(pose, dtype=np.float64), pts, len(pts), max_range)
+        return integrate_scan(self.logodds, self.region, self.origin[0], self.origin[1],
+                              self.resolution, np.asarray(pose, dtype=np.float64), pts, len(pts),
+                              max_range)
 
     def probability(self) -> np.ndarray:
         return 1.0 - 1.0 / (1.0 + np.exp(self.logodds.astype(np.float64)))

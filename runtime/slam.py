@@ -69,8 +69,12 @@ class StepResult:
 
 
 class GraphSlam:
-    def __init__(self, config: SlamConfig | None = None, seed: int = 0):
+    def __init__(self, config: SlamConfig | None = None, seed: int = 0, initial_pose=None):
+        """``initial_pose``: the first scan's pose in the map frame (default: the origin, so
+        the first scan's frame is the map's; a simulator or a robot that knows where it starts
+        passes that pose)."""
         self.config = c = config or SlamConfig()
+        self.initial_pose = np.zeros(3) if initial_pose is None else np.array(initial_pose, dtype=np.float64)
         if c.information not in ("fixed", "paper"):
             raise ValueError(f"information must be 'fixed' or 'paper', got {c.information!r}")
         self.matcher = ScanMatcher(c.matcher, seed=seed)
@@ -202,7 +206,7 @@ class GraphSlam:
 
     # ------------------------------------------------------------------ helpers
     def _start(self, scan, odometry, stamp):
-        self.graph.add_node(np.zeros(3), stamp)  # the first scan's frame is the world frame
+        self.graph.add_node(self.initial_pose, stamp)
         self._store_scan(0, scan)
         self.matcher.build_reference(scan, self.keyframe_reference)
         self.keyframe = 0

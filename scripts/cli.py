@@ -47,6 +47,15 @@ def _bench_slam(args) -> int:
     return 0
 
 
+def _bench_env(args) -> int:
+    from swarmslam_sim.benchmark import bench_env
+
+    bench_env(args.world, args.steps, args.slam_steps, args.json)
+    if args.json:
+        print(f"wrote {args.json}")
+    return 0
+
+
 def _replay(args) -> int:
     from runtime.replay import replay
 
@@ -66,9 +75,16 @@ def _replay(args) -> int:
 
 
 def _demo(args) -> int:
-    from runtime.demo import run_demo
+    if args.matcher_only:
+        from runtime.demo import run_demo
 
-    run_demo(out_dir=Path(args.out), optimizer=args.optimizer, seed=args.seed, steps=args.steps)
+        run_demo(out_dir=Path(args.out), optimizer=args.optimizer, seed=args.seed,
+                 steps=args.steps or 120)
+        return 0
+    from swarmslam_sim.demo import run_exploration_demo
+
+    run_exploration_demo(Path(args.out), world=args.world, optimizer=args.optimizer,
+                         seed=args.seed, max_steps=args.steps or 1500)
     return 0
 
 
@@ -76,11 +92,15 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="swarmslam", description=__doc__.split("\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
 
-    demo = sub.add_parser("demo", help="run the SLAM front end on the built-in synthetic world")
+    demo = sub.add_parser("demo", help="a simulated robot explores the office world with SLAM")
     demo.add_argument("--out", default="swarmslam-demo", help="output folder")
+    demo.add_argument("--world", default="office",
+                      help="built-in world, generator (rooms, maze, clutter) or .world file")
     demo.add_argument("--optimizer", default="abc", choices=["abc", "pso", "fa"])
     demo.add_argument("--seed", type=int, default=0)
-    demo.add_argument("--steps", type=int, default=120, help="scans along the loop")
+    demo.add_argument("--steps", type=int, help="step limit (default 1500; 120 with --matcher-only)")
+    demo.add_argument("--matcher-only", action="store_true",
+                      help="runtime only, no simulator: chain swarm matches around a synthetic loop")
     demo.set_defaults(func=_demo)
 
     rp = sub.add_parser("replay", help="run the SLAM over a CARMEN log")
@@ -118,6 +138,12 @@ def build_parser() -> argparse.ArgumentParser:
     pg.add_argument("--repeats", type=int, default=5)
     pg.add_argument("--json", help="write results here (atomically)")
     pg.set_defaults(func=_bench_posegraph)
+    env = bsub.add_parser("env", help="SwarmSlam-v0 steps/s with SLAM off and on, LiDAR scans/s")
+    env.add_argument("--world", default="office")
+    env.add_argument("--steps", type=int, default=5000, help="steps timed without SLAM")
+    env.add_argument("--slam-steps", type=int, default=1000, help="steps timed with SLAM")
+    env.add_argument("--json", help="write results here (atomically)")
+    env.set_defaults(func=_bench_env)
     return p
 
 

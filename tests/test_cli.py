@@ -50,7 +50,7 @@ def test_bench_matcher_says_when_data_is_missing(tmp_path, capsys):
 
 
 def test_demo_writes_trajectories_figure_and_summary(tmp_path, capsys):
-    assert main(["demo", "--out", str(tmp_path), "--steps", "30"]) == 0
+    assert main(["demo", "--matcher-only", "--out", str(tmp_path), "--steps", "30"]) == 0
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["per_step_error_m"] < 0.02
     for name in ("demo.png", "trajectory_true.tum", "trajectory_estimated.tum"):
@@ -87,3 +87,13 @@ def test_replay_reports_malformed_log_with_line(tmp_path, capsys):
     bad.write_text("FLASER 3 1.0 2.0\n")
     assert main(["replay", str(bad)]) == 2
     assert "bad.clf:1: range" in capsys.readouterr().err
+
+
+def test_exploration_demo_maps_the_world_and_writes_its_outputs(tmp_path, capsys):
+    assert main(["demo", "--out", str(tmp_path), "--world", "maze", "--steps", "150"]) == 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["coverage"] > 0.3 and summary["pose_error_max_m"] < 0.25
+    assert "image: map.pgm" in (tmp_path / "map.yaml").read_text()
+    for name in ("map.pgm", "map.png", "trajectory.png", "trajectory_true.tum", "trajectory_estimated.tum"):
+        assert (tmp_path / name).stat().st_size > 0
+    assert "pose error" in capsys.readouterr().out

@@ -19,13 +19,14 @@ from runtime.synthetic import room_world, scan_at
 ANGLES = np.deg2rad(np.arange(-180, 180, 1.0))
 
 
-def run(steps=100, laps=1.25, odometry_noise=(0.02, 0.02, 0.01), seed=0, config=None):
+def run(steps=100, laps=1.25, odometry_noise=(0.02, 0.02, 0.01), seed=0, config=None,
+        initial_pose=None):
     """Drive 1¼ laps of the demo loop: the second pass over the start closes a loop."""
     truth = loop_path(int(steps / laps))
     truth = np.vstack([truth] * 2)[:steps]
     world = room_world(seed, size=(12.0, 9.0), boxes=14, walls=0, keep_clear=truth)
     rng = np.random.default_rng(seed)
-    slam = GraphSlam(config or SlamConfig(), seed=seed)
+    slam = GraphSlam(config or SlamConfig(), seed=seed, initial_pose=initial_pose)
     odom = truth[0].copy()
     scan = PointScan(len(ANGLES))
     for k in range(steps):
@@ -45,6 +46,17 @@ def test_loop_closes_and_optimised_trajectory_recovers_the_truth():
     assert np.sum(slam.graph.kind[: slam.graph.n_edges] == LOOP) == slam.loops.accepted
     assert err.max() < 0.15 and err.mean() < 0.05, (err.max(), err.mean())
     assert np.allclose(stamps, np.arange(len(truth)))
+
+
+def test_initial_pose_anchors_the_map_frame():
+    slam, truth_in_first_frame, _ = run(steps=40)
+    start = np.array([3.0, -2.0, 1.0])
+    anchored, _, _ = run(steps=40, initial_pose=start)
+    assert np.allclose(anchored.graph.poses[0], start)
+    _, poses = slam.trajectory()
+    _, placed = anchored.trajectory()
+    # the same run, expressed in a frame where the first scan sits at ``start``
+    assert np.allclose(placed, compose(start, poses), atol=1e-6)
 
 
 def test_runs_on_scans_alone_as_in_the_paper():

@@ -1,0 +1,113 @@
+"""``swarmslam bench env``: simulator throughput, with the SLAM off and on.
+
+Steps per second of ``gymnasium.make("SwarmSlam-v0")`` (its wrappers included) on the office
+world with the 360-beam RPLidar A1 preset, driven by seeded random actions held for 10 steps;
+LiDAR scans per second of the compiled caster beside pymunk's per-beam queries on the same
+poses; and the throughput of 2 environments in ``SyncVectorEnv`` and ``AsyncVectorEnv``.
+Everything is measured in one run, so the ratios hold even on a noisy shared machine.
+"""
+
+from __future__ import annotations
+
+import time
+
+import gymnasium as gym
+
+from runtime.writers import write_json_atomic
+
+TARGETS = {"steps_per_s_without_slam": 5000, "steps_per_s_with_slam": 200}
+
+
+def _actions(space, count, seed):
+    space.seed(seed)
+    held = [space.sample() for _ in range(count // 10 + 1)]
+    return [held[k // 10] for k in range(count)]
+
+
+def _steps_per_second(slam: bool, steps: int, world: str, seed: int = 0) -> float:
+    env = gym.make("swarmslam_sim:SwarmSlam-v0", world=world, slam=slam, coverage_goal=None,
+                   max_episode_steps=steps + 1)
+    env.reset(seed=seed)
+    actions = _actions(env.action_space, steps, seed)
+    for a in actions[:20]:  # warm-up: numba cache loads, first SLAM node
+        env.step(a)
+    env.reset(seed=seed)
+    t0 = time.perf_counter()
+    for a in actions:
+        env.step(a)
+    elapsed = time.perf_counter() - t0
+    env.close()
+    return steps / elapsed
+
+
+def _scans_per_second(world: str, scans: int) -> dict:
+    from swarmslam_sim.lidar import PRESETS, Lidar
+    from swarmslam_sim.physics import build_space, pymunk_scan
+    from swarmslam_sim.world import get_world
+
+    w = get_world(world)
+    lidar = Lidar(w, PRESETS["rplidar-a1"])
+    space = build_space(w)
+    env = gym.make("swarmslam_sim:SwarmSlam-v0", world=world, slam=False, coverage_goal=None)
+    env.reset(seed=1)
+    poses = []
+    for a in _actions(env.action_space, 200, 1):
+        poses.append(env.step(a)[4]["true_pose"])
+    lidar.cast(poses[0])
+    t0 = time.perf_counter()
+    for k in range(scans):
+        lidar.cast(poses[k % len(poses)])
+    numba_rate = scans / (time.perf_counter() - t0)
+    few = min(scans // 20, len(poses))
+    t0 = time.perf_counter()
+    for k in range(few):
+        pymunk_scan(space, poses[k], lidar.angles, lidar.config.max_range)
+    pymunk_rate = few / (time.perf_counter() - t0)
+    return {"numba_scans_per_s": numba_rate, "pymunk_scans_per_s": pymunk_rate,
+            "speed_up": numba_rate / pymunk_rate,
+            "numba_ms_per_scan": 1e3 / numba_rate, "pymunk_ms_per_scan": 1e3 / pymunk_rate}
+
+
+def _vector_steps_per_second(mode: str, slam: bool, steps: int, world: str) -> float:
+    kwargs = {"context": "spawn"} if mode == "async" else {}
+    envs = gym.make_vec("swarmslam_sim:SwarmSlam-v0", num_envs=2, vectorization_mode=mode,
+                        vector_kwargs=kwargs, world=world, slam=slam, coverage_goal=None,
+                        max_episode_steps=steps + 50)
+    envs.reset(seed=[0, 1])
+    envs.action_space.seed(0)
+    actions = [envs.action_space.sample() for _ in range(steps // 10 + 1)]
+    for k in range(20):
+        envs.step(actions[k // 10])
+    t0 = time.perf_counter()
+    for k in range(steps):
+        envs.step(actions[k // 10])
+    elapsed = time.perf_counter() - t0
+    envs.close()
+    return 2 * steps / elapsed  # environment steps, both envs
+
+
+def bench_env(world: str = "office", steps: int = 5000, slam_steps: int = 1000,
+              json_path=None, echo=print) -> dict:
+    echo(f"SwarmSlam-v0 on {world}, RPLidar A1 preset (360 beams), seeded random actions")
+    r = {"world": world, "beams": 360}
+    r["steps_per_s_without_slam"] = _steps_per_second(False, steps, world)
+    echo(f"  without SLAM  {r['steps_per_s_without_slam']:8.0f} steps/s   (target ≥ {TARGETS['steps_per_s_without_slam']})")
+    r["steps_per_s_with_slam"] = _steps_per_second(True, slam_steps, world)
+    echo(f"  with SLAM     {r['steps_per_s_with_slam']:8.0f} steps/s   (target ≥ {TARGETS['steps_per_s_with_slam']})")
+    r["lidar"] = _scans_per_second(world, steps)
+    lid = r["lidar"]
+    echo(f"  LiDAR         {lid['numba_scans_per_s']:8.0f} scans/s compiled ({lid['numba_ms_per_scan']:.3f} ms), "
+         f"{lid['pymunk_scans_per_s']:.0f} with pymunk queries ({lid['pymunk_ms_per_scan']:.2f} ms): "
+         f"{lid['speed_up']:.0f}×")
+    r["vector"] = {}
+    for mode in ("sync", "async"):
+        for slam, n in ((False, steps // 2), (True, slam_steps // 2)):
+            key = f"{mode}_{'slam' if slam else 'no_slam'}"
+            r["vector"][key] = _vector_steps_per_second(mode, slam, n, world)
+            echo(f"  2 envs {mode:5s} {'with' if slam else 'without'} SLAM  "
+                 f"{r['vector'][key]:8.0f} env-steps/s")
+    r["targets"] = TARGETS
+    r["met"] = {k: r[k] >= v for k, v in TARGETS.items()}
+    if json_path:
+        write_json_atomic(json_path, r)
+    return r

@@ -1,0 +1,294 @@
+"""``SwarmSlam-v0``: explore a 2-D world with a LiDAR robot whose pose the SLAM estimates."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import replace
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from runtime.pose import between_nb, compose_nb, wrap_angle
+from runtime.scan import PointScan, ranges_to_points
+from runtime.scan_matcher import MatcherConfig
+from runtime.slam import GraphSlam, SlamConfig
+from swarmslam_sim.lidar import Lidar, lidar_config
+from swarmslam_sim.mapping import crop_probability, world_grid
+from swarmslam_sim.physics import SUBSTEP, Robot, build_space
+from swarmslam_sim.world import get_world
+
+
+def tracking_matcher(optimizer: str) -> MatcherConfig:
+    """The matcher with half the swarm budget of the dataset benchmarks: the simulated robot's
+    odometry always centres the search, and 1,500 + 300 evaluations kept its pose error at
+    4–7 cm in the office world while halving the SLAM time per step (README, bench env)."""
+    base = MatcherConfig.for_optimizer(optimizer)
+    return replace(base, swarm=replace(base.swarm, max_evaluations=1500), refine_evaluations=300)
+
+
+class SwarmSlamEnv(gym.Env):
+    """A differential-drive robot with a LiDAR explores a world while graph SLAM with swarm
+    scan matching (ABC, PSO or firefly) estimates its pose and builds the map.
+
+    One step is one LiDAR revolution (``1 / rate_hz`` s: 0.18 s for the default RPLidar A1
+    preset): the action is held, the physics runs, a scan is taken and the SLAM processes it.
+
+    ## Action Space
+    ``Box(-1, 1, (2,), float32)``: linear velocity as a fraction of ``max_linear`` (m/s;
+    negative drives backwards) and angular velocity as a fraction of ``max_angular`` (rad/s,
+    counter-clockwise). Values outside [-1, 1] are clipped.
+
+    ## Observation Space
+    ``Dict`` of
+    - ``"scan"``: ``Box(0, max_range, (beams,), float32)`` — ranges (m) of the beams, at angles
+      ``env.unwrapped.lidar.angles`` (rad, 0 straight ahead, counter-clockwise); a beam with no
+      return (nothing within range, too near, or dropped out) reads ``max_range``.
+    - ``"pose"``: ``Box([xmin, ymin, -π], [xmax, ymax, π], (3,), float32)`` — the SLAM's
+      estimate of x, y (m, world frame) and heading (rad), clipped to the world's bounds; with
+      ``slam=False``, the true pose.
+    - ``"map"``: ``Box(0, 1, (crop, crop), float32)`` — the SLAM map's occupancy probability on
+      a ``crop × crop`` window of ``map_resolution`` cells centred on the estimated position,
+      aligned with the world axes (row 0 is the lowest y, column 0 the lowest x); 0.5 is
+      unknown, also outside the world.
+
+    ## Rewards
+    ``reward_per_m2`` for every square metre of the world's mappable area that the map observes
+    for the first time in the step, minus ``collision_penalty`` when the robot hits a wall
+    (contact begins).
+
+    ## Starting State
+    The world's start position with a heading drawn uniformly from [-π, π); the map is empty.
+
+    ## Episode End
+    Terminated when ``coverage_goal`` of the mappable area is observed (``None``: never), or on the first
+    collision when ``terminate_on_collision``. Truncated by the time limit
+    (``max_episode_steps``, 500 when made by ``gymnasium.make``).
+
+    ## Info
+    ``true_pose``, ``estimated_pose``, ``pose_error`` (m, and ``heading_error`` rad),
+    ``coverage`` (0–1), ``collisions`` (count this episode), ``in_contact``, ``odometry`` (the
+    wheel-odometry pose), ``slam_nodes``, ``loop_closures`` and ``slam_status``; with
+    ``timing_in_info=True`` also ``slam_ms``, this step's SLAM wall time. (Off by default: a
+    wall time differs run to run, and Gymnasium's ``check_env`` requires the same info for the
+    same seed; ``env.unwrapped.slam_ms`` always holds it.)
+
+    ## Arguments
+    ``world``: a built-in world (``office``), a generator (``rooms``, ``maze``, ``clutter``;
+    seeded by ``world_seed``), a ``.world`` path or a :class:`World`. ``lidar``: a preset
+    (``rplidar-a1``, ``rplidar-a2``, ``lms200``), a dict of ``LidarConfig`` fields, or a config.
+    ``optimizer``: ``abc``, ``pso`` or ``fa``. ``slam=False`` reports the true pose and maps
+    from it (a fast baseline). ``odometry_noise``: std of the wheel odometry per metre
+    travelled (x and y), per radian turned and per metre travelled (heading).
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
+
+    def __init__(self, render_mode: str | None = None, world="office", world_seed: int = 0,
+                 lidar="rplidar-a1", optimizer: str = "abc", slam: bool = True,
+                 odometry_noise=(0.05, 0.05, 0.02), max_linear: float = 0.5,
+                 max_angular: float = 1.5, robot_radius: float = 0.17,
+                 map_resolution: float = 0.1, crop: int = 64, coverage_goal: float | None = 0.9,
+                 terminate_on_collision: bool = False, reward_per_m2: float = 1.0,
+                 collision_penalty: float = 1.0, slam_config: SlamConfig | None = None,
+                 timing_in_info: bool = False):
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
+        if optimizer not in ("abc", "pso", "fa"):
+            raise ValueError(f"optimizer must be 'abc', 'pso' or 'fa', got {optimizer!r}")
+        if len(odometry_noise) != 3 or min(odometry_noise) < 0:
+            raise ValueError(f"odometry_noise needs three stds ≥ 0, got {odometry_noise}")
+        self.render_mode = render_mode
+        self.world = get_world(world, world_seed)
+        self.lidar = Lidar(self.world, lidar_config(lidar))
+        self.use_slam = bool(slam)
+        self.odometry_noise = tuple(float(v) for v in odometry_noise)
+        self.max_linear, self.max_angular = float(max_linear), float(max_angular)
+        self.robot_radius = float(robot_radius)
+        if coverage_goal is not None and not 0 < coverage_goal <= 1:
+            raise ValueError(f"coverage_goal must be in (0, 1] or None, got {coverage_goal}")
+        self.coverage_goal = coverage_goal
+        self.terminate_on_collision = bool(terminate_on_collision)
+        self.reward_per_m2, self.collision_penalty = float(reward_per_m2), float(collision_penalty)
+        self.timing_in_info = bool(timing_in_info)
+        self.dt = 1.0 / self.lidar.config.rate_hz
+        self.substeps = max(1, math.ceil(self.dt / SUBSTEP - 1e-9))
+        lc = self.lidar.config
+        self.slam_config = slam_config or SlamConfig(
+            matcher=tracking_matcher(optimizer), max_points=lc.beams,
+            max_nodes=4000, max_edges=16000, max_scans=20000)
+        self.map = world_grid(self.world, map_resolution)
+        self.mappable_cells = int(self.map.region.sum())
+        self.cell_area = map_resolution**2
+
+        x0, y0, x1, y1 = self.world.bounds
+        self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
+        self.observation_space = spaces.Dict({
+            "scan": spaces.Box(0.0, lc.max_range, (lc.beams,), np.float32),
+            "pose": spaces.Box(np.array([x0, y0, -math.pi], np.float32),
+                               np.array([x1, y1, math.pi], np.float32), dtype=np.float32),
+            "map": spaces.Box(0.0, 1.0, (crop, crop), np.float32),
+        })
+        self._scan = PointScan(lc.beams)
+        self._crop = np.zeros((crop, crop))
+        self.space = self.robot = self.slam = None
+        self.renderer = None
+        self.true_path: list[np.ndarray] = []
+        self.estimated_path: list[np.ndarray] = []
+
+    # ------------------------------------------------------------------ Gymnasium API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        rng = self.np_random
+        start = np.array(self.world.start, dtype=np.float64)
+        start[2] = rng.uniform(-math.pi, math.pi)
+        self.space = build_space(self.world)
+        self.robot = Robot(self.space, start, self.robot_radius)
+        self.slam = (GraphSlam(self.slam_config, seed=int(rng.integers(2**31)), initial_pose=start)
+                     if self.use_slam else None)
+        self.true_pose = start.copy()
+        self.odometry = start.copy()
+        self.estimated_pose = start.copy()
+        self.map.logodds[:] = 0.0
+        self._mapped_poses = np.zeros((self.slam_config.max_nodes, 3))  # node poses the map shows
+        self.known_cells = 0
+        self.collisions = 0
+        self.in_contact = False
+        self.steps = 0
+        self.slam_ms = 0.0
+        self.true_path = [start.copy()]
+        self.estimated_path = [start.copy()]
+        self._sense()
+        if self.render_mode == "human":
+            self.render()
+        return self._observation(), self._info()
+
+    def step(self, action):
+        if self.robot is None:
+            raise RuntimeError("call reset() before step()")
+        action = np.clip(np.asarray(action, dtype=np.float64).reshape(2), -1.0, 1.0)
+        self.robot.command(action[0] * self.max_linear, action[1] * self.max_angular)
+        self.robot.clear_touched()
+        for _ in range(self.substeps):
+            self.space.step(self.dt / self.substeps)
+        touched = self.robot.touched
+        collided = touched and not self.in_contact  # contact begins: one collision
+        self.in_contact = touched
+        self.collisions += int(collided)
+        previous, self.true_pose = self.true_pose, self.robot.pose
+        self.true_pose[2] = wrap_angle(self.true_pose[2])
+        motion = self._odometry_motion(between_nb(*self.true_pose, *previous))
+        self.odometry = np.array(compose_nb(*self.odometry, *motion))
+        self.steps += 1
+        new_cells = self._sense()
+        reward = new_cells * self.cell_area * self.reward_per_m2 - self.collision_penalty * collided
+        mapped = self.coverage_goal is not None and self.coverage >= self.coverage_goal
+        terminated = bool(mapped or (self.terminate_on_collision and collided))
+        if self.render_mode == "human":
+            self.render()
+        return self._observation(), float(reward), terminated, False, self._info()
+
+    def render(self):
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' "
+                            "or 'human' to gymnasium.make")
+            return None
+        from swarmslam_sim.render import Renderer
+
+        if self.renderer is None:
+            self.renderer = Renderer(self.world, self.map, self.render_mode, self.metadata["render_fps"])
+        return self.renderer.draw(self)
+
+    def close(self):
+        if self.renderer is not None:
+            self.renderer.close()
+            self.renderer = None
+
+    # ------------------------------------------------------------------ one scan
+    def _sense(self) -> int:
+        """Take a scan at the true pose, let the SLAM place it, and map it from the estimate;
+        returns the mappable cells observed for the first time."""
+        lc = self.lidar.config
+        ranges = self.lidar.scan(self.true_pose, self.np_random)
+        scan = self._scan
+        scan.count = ranges_to_points(ranges, self.lidar.angles, lc.min_range, lc.max_range, scan.buffer)
+        if self.slam is not None and scan.count > 0:
+            t0 = time.perf_counter()
+            result = self.slam.step(scan, self.odometry, self.steps * self.dt)
+            self.slam_ms = 1e3 * (time.perf_counter() - t0)
+            self.estimated_pose = result.pose
+            if result.node_added:
+                self._mapped_poses[self.slam.keyframe] = self.slam.graph.poses[self.slam.keyframe]
+            if result.loop_closed and self._graph_moved():
+                self._rebuild_map()
+        elif self.slam is None:
+            self.estimated_pose = self.true_pose.copy()
+        self.true_path.append(self.true_pose.copy())
+        self.estimated_path.append(self.estimated_pose.copy())
+        new_cells = self.map.integrate(self.estimated_pose, scan.points, lc.max_range) if scan.count else 0
+        self.known_cells += new_cells
+        return new_cells
+
+    def _graph_moved(self) -> bool:
+        """Did the optimisation move a node by more than half a map cell (at the LiDAR's
+        reach, for turns) since the map was drawn?"""
+        n = self.slam.graph.n_nodes
+        d = self.slam.graph.poses[:n] - self._mapped_poses[:n]
+        shift = np.max(np.hypot(d[:, 0], d[:, 1]) + np.abs(wrap_angle(d[:, 2])) * self.lidar.config.max_range)
+        return shift > 0.5 * self.map.resolution
+
+    def _rebuild_map(self):
+        """A loop closed and the graph moved: redraw the map from the optimised node poses."""
+        slam, grid = self.slam, self.map
+        self._mapped_poses[: slam.graph.n_nodes] = slam.graph.poses[: slam.graph.n_nodes]
+        grid.logodds[:] = 0.0
+        for k in range(slam.graph.n_nodes):
+            grid.integrate(slam.graph.poses[k], slam.node_points[k, : slam.node_counts[k]], self.lidar.config.max_range)
+        self.known_cells = int(np.count_nonzero(grid.logodds[grid.region.astype(bool)]))
+
+    def _odometry_motion(self, motion):
+        """Wheel odometry: the true motion with noise growing with distance and turn."""
+        a_xy, a_turn, a_drift = self.odometry_noise
+        dist, turn = math.hypot(motion[0], motion[1]), abs(motion[2])
+        if dist == 0.0 and turn == 0.0:
+            return motion  # wheels at rest report no motion
+        n = self.np_random.standard_normal(3)
+        return (motion[0] + n[0] * a_xy * dist, motion[1] + n[1] * a_xy * dist,
+                motion[2] + n[2] * (a_turn * turn + a_drift * dist))
+
+    @property
+    def coverage(self) -> float:
+        return self.known_cells / self.mappable_cells
+
+    def _observation(self):
+        lo, hi = self.observation_space["pose"].low, self.observation_space["pose"].high
+        pose = self.estimated_pose.astype(np.float32)
+        pose[2] = wrap_angle(self.estimated_pose[2])
+        crop_probability(self.map.logodds, self.map.origin[0], self.map.origin[1],
+                         self.map.resolution, self.estimated_pose[0], self.estimated_pose[1], self._crop)
+        return {
+            "scan": self.lidar.ranges.astype(np.float32),
+            "pose": np.clip(pose, lo, hi),
+            "map": self._crop.astype(np.float32),
+        }
+
+    def _info(self):
+        error = between_nb(*self.estimated_pose, *self.true_pose)
+        slam = self.slam
+        info = {
+            "true_pose": self.true_pose.copy(),
+            "estimated_pose": self.estimated_pose.copy(),
+            "pose_error": math.hypot(error[0], error[1]),
+            "heading_error": abs(wrap_angle(error[2])),
+            "coverage": self.coverage,
+            "collisions": self.collisions,
+            "in_contact": self.in_contact,
+            "odometry": self.odometry.copy(),
+            "slam_nodes": 0 if slam is None else slam.graph.n_nodes,
+            "loop_closures": 0 if slam is None else slam.loops.accepted,
+            "slam_status": "off" if slam is None else slam.status,
+        }
+        if self.timing_in_info:
+            info["slam_ms"] = self.slam_ms
+        return info

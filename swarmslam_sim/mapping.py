@@ -1,0 +1,71 @@
+"""The environment's view of the map: the area there is to map, and the robot-centred crop.
+
+The *mappable area* of a world is every grid cell whose centre lies at least one cell from any
+wall and that the robot can reach from its start (a flood fill from the start cell). Coverage
+is the share of it that the SLAM map has observed.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+from scipy import ndimage
+
+from runtime.occupancy_grid import OccupancyGrid
+from swarmslam_sim.raycast import point_segment_distance
+from swarmslam_sim.world import World
+
+
+def world_grid(world: World, resolution: float) -> OccupancyGrid:
+    """An empty grid over the world's bounds, its ``region`` set to the mappable area."""
+    x0, y0, x1, y1 = world.bounds
+    grid = OccupancyGrid(int(math.ceil((x1 - x0) / resolution)), int(math.ceil((y1 - y0) / resolution)),
+                         resolution, (x0, y0))
+    grid.region[:] = mappable_area(world, grid)
+    return grid
+
+
+def wall_clearance(world: World, grid: OccupancyGrid) -> np.ndarray:
+    """Distance from each cell centre to the nearest wall (m), shape of the grid."""
+    h, w = grid.logodds.shape
+    xs = grid.origin[0] + (np.arange(w) + 0.5) * grid.resolution
+    ys = grid.origin[1] + (np.arange(h) + 0.5) * grid.resolution
+    centres = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
+    best = np.full(len(centres), np.inf)
+    for seg in world.segments:
+        np.minimum(best, point_segment_distance(centres, seg), out=best)
+    return best.reshape(h, w)
+
+
+def mappable_area(world: World, grid: OccupancyGrid) -> np.ndarray:
+    free = wall_clearance(world, grid) >= grid.resolution
+    labels, _ = ndimage.label(free)
+    sx, sy = grid_cell(grid, world.start)
+    if not (0 <= sy < free.shape[0] and 0 <= sx < free.shape[1]) or labels[sy, sx] == 0:
+        raise ValueError(f"world {world.name!r}: the start {world.start[:2]} is not in free space")
+    return (labels == labels[sy, sx]).astype(np.uint8)
+
+
+def grid_cell(grid: OccupancyGrid, xy) -> tuple[int, int]:
+    return (int(math.floor((xy[0] - grid.origin[0]) / grid.resolution)),
+            int(math.floor((xy[1] - grid.origin[1]) / grid.resolution)))
+
+
+@njit(cache=True)
+def crop_probability(logodds, origin_x, origin_y, res, x, y, out):
+    """Occupancy probability on a ``out``-sized window centred on (x, y), axis-aligned with the
+    world, row 0 the lowest y; 0.5 (unknown) outside the grid."""
+    h, w = logodds.shape
+    size_y, size_x = out.shape
+    cx = int(math.floor((x - origin_x) / res)) - size_x // 2
+    cy = int(math.floor((y - origin_y) / res)) - size_y // 2
+    for i in range(size_y):
+        gy = cy + i
+        for j in range(size_x):
+            gx = cx + j
+            if 0 <= gy < h and 0 <= gx < w:
+                out[i, j] = 1.0 - 1.0 / (1.0 + math.exp(logodds[gy, gx]))
+            else:
+                out[i, j] = 0.5
