@@ -245,7 +245,7 @@ class SwarmSlamEnv(gym.Env):
         grid.logodds[:] = 0.0
         for k in range(slam.graph.n_nodes):
             grid.integrate(slam.graph.poses[k], slam.node_points[k, : slam.node_counts[k]], self.lidar.config.max_range)
-        self.known_cells = int(np.count_nonzero(grid.logodds[grid.region.astype(bool)]))
+        self.known_cells = int(np.count_nonzero((grid.logodds != 0) & (grid.region != 0)))
 
     def _odometry_motion(self, motion):
         """Wheel odometry: the true motion with noise growing with distance and turn."""

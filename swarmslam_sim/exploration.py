@@ -17,6 +17,7 @@ from numba import njit
 from scipy import ndimage
 
 from runtime.occupancy_grid import OccupancyGrid
+from swarmslam_sim.mapping import grid_cell
 
 NO_GOAL = -1
 
@@ -100,8 +101,8 @@ class FrontierExplorer:
                                      mode="constant") >= 3
         cost_extra = np.clip(self.comfort - clearance, 0.0, None) * (8.0 / res)
         h, w = lo.shape
-        sx = min(max(int((pose[0] - grid.origin[0]) / res), 0), w - 1)
-        sy = min(max(int((pose[1] - grid.origin[1]) / res), 0), h - 1)
+        sx, sy = grid_cell(grid, pose)
+        sx, sy = min(max(sx, 0), w - 1), min(max(sy, 0), h - 1)
         passable[sy, sx] = True  # the robot's own cell, even when it hugs a wall
         start = sy * w + sx
         dist = np.empty(h * w)
