@@ -20,22 +20,13 @@ from runtime.pose import between, compose, transform_points
 from runtime.progress import Progress
 from runtime.scan import PointScan
 from runtime.scan_matcher import MatcherConfig, ScanMatcher
-from runtime.synthetic import room_world, scan_at
+from runtime.synthetic import loop_path, room_world, scan_at
 from runtime.tum import write_tum
 from runtime.writers import write_json_atomic
 
 ANGLES = np.deg2rad(np.arange(-180.0, 180.0, 1.0))
 MAX_RANGE = 12.0
 RATE_HZ = 5.0
-
-
-def loop_path(steps: int, centre=(6.0, 4.5), radii=(3.6, 2.4)) -> np.ndarray:
-    """Poses along an ellipse, heading along the path."""
-    s = np.linspace(0.0, 2 * np.pi, steps, endpoint=False)
-    x = centre[0] + radii[0] * np.cos(s)
-    y = centre[1] + radii[1] * np.sin(s)
-    heading = np.arctan2(radii[1] * np.cos(s), -radii[0] * np.sin(s))
-    return np.c_[x, y, heading]
 
 
 def run_demo(out_dir: Path, optimizer: str = "abc", seed: int = 0, steps: int = 120,

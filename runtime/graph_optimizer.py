@@ -2,9 +2,10 @@
 
 * Assembly: one compiled pass over the edges into preallocated triplets (a Python loop over
   edges was 40× slower), scattered into a CSC pattern that is worked out once per edge set.
-* Solve: sparse LDLᵀ with AMD ordering (qdldl; scipy has no sparse Cholesky, and SuperLU took
-  88 ms per iteration on M3500 against 5 ms). The pattern is fixed while the edges are, so
-  later iterations only refactor numerically.
+* Solve: sparse LDLᵀ (:mod:`runtime.sparse_ldl`: minimum-degree ordering of the nodes, QDLDL's
+  factorisation, compiled, in buffers of fixed capacity; scipy has no sparse Cholesky, and
+  SuperLU took 88 ms per iteration on M3500 against 5 ms). The ordering and symbolic analysis
+  are redone only when the edge set changes; iterations refactor numerically.
 * The first pose is fixed by leaving it out of the unknowns. Perturbations are additive on
   ``(x, y, θ)``, as in g2o's ``VertexSE2``, so the χ² reached is g2o's.
 * Plain Gauss–Newton, as g2o iterates it: a step that raises χ² is kept (from INTEL's odometry
@@ -21,13 +22,13 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-import qdldl
 import scipy.sparse as sp
 from numba import njit
 from scipy.sparse.linalg import splu
 
 from runtime.pose import wrap_angle_nb
 from runtime.pose_graph import PoseGraph, edge_error
+from runtime.sparse_ldl import SparseLDL, permute_triplets
 
 
 @njit(cache=True)
@@ -135,6 +136,59 @@ def scatter(vals, slot, data):
             data[k] += vals[t]
 
 
+@njit(cache=True)
+def csc_pattern(rows, cols, size, cursor, sort_rows, sort_idx, slot, indices, indptr, diag):
+    """Upper-triangle CSC pattern of the triplets (row ≤ col, both ≥ 0): ``indices`` and
+    ``indptr``, each triplet's ``slot`` in it (−1: dropped) and each column's diagonal slot;
+    a counting sort by column, then rows sorted and merged within each column."""
+    for c in range(size + 1):
+        cursor[c] = 0
+    for t in range(rows.shape[0]):
+        slot[t] = -1
+        r = rows[t]
+        c = cols[t]
+        if r >= 0 and c >= 0 and r <= c:
+            cursor[c + 1] += 1
+    for c in range(size):
+        cursor[c + 1] += cursor[c]
+    for c in range(size + 1):
+        indptr[c] = cursor[c]  # column starts, for the moment
+    for t in range(rows.shape[0]):
+        r = rows[t]
+        c = cols[t]
+        if r >= 0 and c >= 0 and r <= c:
+            q = cursor[c]
+            sort_rows[q] = r
+            sort_idx[q] = t
+            cursor[c] = q + 1
+    nnz = 0
+    for c in range(size):
+        a = indptr[c]
+        b = cursor[c]
+        for k in range(a + 1, b):  # insertion sort by row: a column holds a few dozen
+            r = sort_rows[k]
+            t = sort_idx[k]
+            q = k - 1
+            while q >= a and sort_rows[q] > r:
+                sort_rows[q + 1] = sort_rows[q]
+                sort_idx[q + 1] = sort_idx[q]
+                q -= 1
+            sort_rows[q + 1] = r
+            sort_idx[q + 1] = t
+        indptr[c] = nnz
+        last = -1
+        for k in range(a, b):
+            if sort_rows[k] != last:
+                last = sort_rows[k]
+                indices[nnz] = last
+                if last == c:
+                    diag[c] = nnz
+                nnz += 1
+            slot[sort_idx[k]] = nnz - 1
+    indptr[size] = nnz
+    return nnz
+
+
 @dataclass
 class OptimizeReport:
     chi2_initial: float
@@ -148,7 +202,9 @@ class GaussNewton:
     """Optimises a :class:`PoseGraph` in place; triplet buffers sized from its capacities."""
 
     def __init__(self, graph: PoseGraph, max_iterations: int = 30, tolerance: float = 1e-9,
-                 solver: str = "ldl"):
+                 solver: str = "ldl", fill_ratio: float = 4.0):
+        """``fill_ratio``: capacity of the LDLᵀ factor, in multiples of the largest possible
+        upper triangle of H (INTEL needed 1.5, M3500 2.5)."""
         if solver not in ("ldl", "superlu"):
             raise ValueError(f"unknown solver {solver!r}; choose 'ldl' or 'superlu'")
         self.graph = graph
@@ -161,23 +217,34 @@ class GaussNewton:
         self._vals = np.zeros(36 * m)
         self._b = np.zeros(3 * max(graph.max_nodes - 1, 1))
         self._saved = np.zeros_like(graph.poses)
+        # CSC pattern buffers at capacity: ≤ 6 upper entries per node's diagonal block and 9
+        # per edge's off-diagonal block (duplicate edges only share).
+        unknowns = 3 * max(graph.max_nodes - 1, 1)
+        self._slot_buf = np.zeros(36 * m, np.int64)
+        self._indices_buf = np.zeros(6 * graph.max_nodes + 9 * m, np.int64)
+        self._indptr_buf = np.zeros(unknowns + 1, np.int64)
+        self._diag_buf = np.zeros(unknowns, np.int64)
+        self._data_buf = np.zeros(6 * graph.max_nodes + 9 * m)
+        self._cursor = np.zeros(unknowns + 1, np.int64)
+        self._sort_rows = np.zeros(36 * m, np.int64)
+        self._sort_idx = np.zeros(36 * m, np.int64)
+        self._prows = np.zeros(36 * m, np.int64)
+        self._pcols = np.zeros(36 * m, np.int64)
+        self._dx = np.zeros(unknowns)
+        self._neg_b = np.zeros(unknowns)
+        self.ldl = SparseLDL(max(graph.max_nodes - 1, 1), int(fill_ratio * len(self._data_buf)))
         self._pattern_key = None
 
     def _pattern(self, rows, cols, size):
-        """The upper triangle's CSC pattern and each triplet's slot in it."""
-        keep = (rows >= 0) & (cols >= 0) & (rows <= cols)
-        keys = cols * size + rows  # CSC order: by column, then row
-        unique, inverse = np.unique(keys[keep], return_inverse=True)
-        slot = np.full(len(rows), -1, np.int64)
-        slot[keep] = inverse
-        indices = unique % size
-        indptr = np.zeros(size + 1, np.int64)
-        np.add.at(indptr, unique // size + 1, 1)
-        indptr = np.cumsum(indptr)
-        diag = np.searchsorted(unique, np.arange(size) * size + np.arange(size))
-        self._slot, self._indices, self._indptr, self._diag = slot, indices, indptr, diag
-        self._data = np.zeros(len(unique))
-        self._factor = None
+        """The upper triangle's CSC pattern and each triplet's slot in it, in buffers of the
+        graph's capacity (nothing allocated: the pattern changes with every new edge)."""
+        nnz = csc_pattern(rows, cols, size, self._cursor, self._sort_rows, self._sort_idx,
+                          self._slot_buf, self._indices_buf, self._indptr_buf, self._diag_buf)
+        self._slot = self._slot_buf[: len(rows)]
+        self._indices = self._indices_buf[:nnz]
+        self._indptr = self._indptr_buf[: size + 1]
+        self._diag = self._diag_buf[:size]
+        self._data = self._data_buf[:nnz]
 
     def _system(self):
         """Assemble at the current poses: upper-triangular H data, b, and χ²."""
@@ -188,27 +255,33 @@ class GaussNewton:
         b = self._b[:size]
         chi2 = assemble(g.poses[:n], g.ij[:m], g.z[:m], g.info[:m], rows, cols, vals, b)
         key = (id(g), n, g.revision)
-        if key != self._pattern_key:  # new edge set: work the pattern out again
-            self._pattern(rows, cols, size)
+        if key != self._pattern_key:  # new edge set: order, pattern and analysis again
+            self._pattern_key = None
+            self.ldl.order_blocks(g.ij[:m], n)
+            prows, pcols = self._prows[: 36 * m], self._pcols[: 36 * m]
+            permute_triplets(rows, cols, self.ldl.order, n - 1, self.ldl.pinv, prows, pcols)
+            self._pattern(prows, pcols, size)
+            self.ldl.analyse(size, self._indptr, self._indices)
             self._pattern_key = key
         scatter(vals, self._slot, self._data)
         return b, chi2
 
     def _solve(self, b, mu):
+        """Δx of ``(H + μI) Δx = −b`` (in the buffer ``_dx``)."""
         size = len(b)
-        data = self._data
-        if mu > 0.0:
-            data = data.copy()
-            data[self._diag] += mu
-        upper = sp.csc_matrix((data, self._indices, self._indptr), shape=(size, size))
-        if self.solver == "superlu":
-            full = upper + sp.triu(upper, k=1).T
-            return splu(full.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(-b)
-        if self._factor is None:
-            self._factor = qdldl.Solver(upper)
-        else:
-            self._factor.update(upper)
-        return self._factor.solve(-b)
+        dx = self._dx[:size]
+        if self.solver == "superlu":  # reference path: the same permuted system, by SuperLU
+            upper = sp.csc_matrix((self._data, self._indices, self._indptr), shape=(size, size))
+            full = (upper + sp.triu(upper, k=1).T + mu * sp.eye(size)).tocsc()
+            x = splu(full, permc_spec="MMD_AT_PLUS_A").solve(-b[np.argsort(self.ldl.pinv[:size])])
+            dx[:] = x[self.ldl.pinv[:size]]
+            return dx
+        if not self.ldl.factor(self._indptr, self._indices, self._data, mu):
+            dx[:] = np.nan  # not positive definite: χ² turns non-finite, LM takes over
+            return dx
+        np.negative(b, out=self._neg_b[:size])
+        self.ldl.solve(self._neg_b[:size], dx)
+        return dx
 
     def optimize(self) -> OptimizeReport:
         """Gauss–Newton until the relative decrease of χ² is below ``tolerance``."""

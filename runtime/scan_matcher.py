@@ -272,6 +272,18 @@ class ScanMatcher:
         self._out = np.zeros(N_OUT)
         self._box = np.zeros((2, 3))
 
+    def set_evaluation_share(self, share: float) -> int:
+        """Scale both stages' evaluation budgets to ``share`` (0–1] of the configured ones: a
+        fixed-rate loop gives the swarm the time a tick has left. Returns the evaluations now
+        allowed in all."""
+        c = self.config
+        share = min(max(share, 0.0), 1.0)
+        glob = max(int(c.swarm.max_evaluations * share), 1) if c.swarm.max_evaluations else 0
+        refine = int(c.refine_evaluations * share)
+        self.settings[S_MAX_EVALS] = glob
+        self.settings[S_REFINE_EVALS] = refine
+        return glob + refine
+
     def new_reference(self) -> ReferenceMaps:
         """A reference buffer of this matcher's capacity (allocate at start-up, then reuse)."""
         c = self.config

@@ -21,12 +21,18 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from runtime.graph_optimizer import GaussNewton
-from runtime.loop_closure import LoopCloser, LoopClosureConfig, propagate_covariance, relative_guess
+from runtime.loop_closure import (
+    LoopCloser,
+    LoopClosureConfig,
+    propagate_covariance,
+    relative_guess,
+)
 from runtime.occupancy_grid import OccupancyGrid
 from runtime.pose import between, compose
 from runtime.pose_graph import LOOP, ODOMETRY, PoseGraph, information_from_sigma
 from runtime.scan import PointScan
 from runtime.scan_matcher import MatcherConfig, ScanMatcher
+from runtime.sparse_ldl import FactorCapacityError
 
 
 @dataclass(frozen=True)
@@ -88,6 +94,8 @@ class GraphSlam:
         self.node_counts = np.zeros(c.max_nodes, np.int64)
         self.node_cov = np.zeros((c.max_nodes, 3, 3))
         self._loop_scan = PointScan(c.max_points)
+        self._node_scan = PointScan(c.max_points)
+        self._saved_poses = np.zeros((c.max_nodes, 3))
         self._submap = PointScan(c.max_points * max(c.submap_nodes, 1))
         # Per-scan trajectory: the node a scan was matched to, and its pose in that node's frame.
         self.scan_node = np.zeros(c.max_scans, np.int64)
@@ -97,7 +105,8 @@ class GraphSlam:
         self.keyframe = -1
         self.rel = np.zeros(3)  # the current pose in the keyframe's frame
         self.motion = np.zeros(3)  # last motion between scans, for a scan-only prediction
-        self.last_odometry = None
+        self.last_odometry = np.zeros(3)  # odometry at the previous scan (a copy)
+        self.have_odometry = False
         self.weak = False  # a match since the last node was replaced by odometry
         self.lost_matches = 0
         self.status = "ok"
@@ -105,7 +114,17 @@ class GraphSlam:
     # ------------------------------------------------------------------ Alg. 4
     def step(self, scan: PointScan, odometry=None, stamp: float = 0.0) -> StepResult:
         """Process one scan (points in the robot frame); ``odometry`` is the robot's odometry
-        pose at the scan, if any. Returns the scan's estimated pose."""
+        pose at the scan, if any. Returns the scan's estimated pose. The whole of Alg. 4 at
+        once; :class:`runtime.fixed_rate.SlamRuntime` runs the same parts sliced across ticks."""
+        result = self.track(scan, odometry, stamp)  # Alg. 5 + Alg. 6
+        if result.node_added and self.seek_loop_closure(self.keyframe):  # Alg. 7
+            result.loop_closed = True
+            result.pose = self.pose()
+        return result
+
+    def track(self, scan: PointScan, odometry=None, stamp: float = 0.0) -> StepResult:
+        """The front end: align the scan with the keyframe (Alg. 5) and add a node when the
+        robot has moved far enough (Alg. 6). Loop closure is left to the caller."""
         if self.keyframe < 0:
             self._start(scan, odometry, stamp)
             return StepResult(self.graph.poses[0].copy(), True, False, 0.0)
@@ -117,11 +136,8 @@ class GraphSlam:
         self.motion = between(pose, self.rel)
         self.rel = pose
         node_added = self.update_graph(scan, stamp)  # Alg. 6
-        loop_closed = node_added and self.seek_loop_closure(self.keyframe)  # Alg. 7
-        if loop_closed:
-            self.optimize_graph()  # Eq. 21
         self._record(stamp)
-        return StepResult(self.pose(), node_added, loop_closed, match.error)
+        return StepResult(self.pose(), node_added, False, match.error)
 
     def pose(self) -> np.ndarray:
         return compose(self.graph.poses[self.keyframe], self.rel)
@@ -145,38 +161,74 @@ class GraphSlam:
         propagate_covariance(self.node_cov[previous], g.poses[previous], self.rel,
                              np.linalg.inv(info), self.node_cov[node])
         self._store_scan(node, scan)
-        self.matcher.build_reference(self._submap_of(node, scan), self.keyframe_reference)
         self.keyframe = node
         self.rel = np.zeros(3)
+        self.rebuild_keyframe_reference()
         return True
+
+    def rebuild_keyframe_reference(self) -> None:
+        """The keyframe's reference maps, from the stored node scans (so that a resumed
+        session rebuilds exactly what the running one had)."""
+        self._load_scan(self.keyframe, self._node_scan)
+        self.matcher.build_reference(self._submap_of(self.keyframe, self._node_scan),
+                                     self.keyframe_reference)
 
     # ------------------------------------------------------------------ Alg. 7
     def seek_loop_closure(self, node: int) -> bool:
-        g, loops = self.graph, self.loops
-        scan = self._loop_scan
-        for candidate in loops.candidates(g, self.node_cov, node)[: loops.config.max_attempts]:
-            if g.n_edges >= g.max_edges:
+        """Alg. 7 for ``node``: align it with up to ``max_attempts`` gated candidates and keep
+        the first closure that passes the consistency test."""
+        for candidate in self.loop_candidates(node)[: self.loops.config.max_attempts]:
+            if self.graph.n_edges >= self.graph.max_edges:
                 self.status = "capacity reached: no more loop closures"
                 return False
-            loops.attempts += 1
-            self._load_scan(candidate, scan)
-            reference = self.loop_matcher.build_reference(scan, self.loop_reference)
-            self._load_scan(node, scan)
-            match = self.loop_matcher.align_scans(scan, reference, relative_guess(g, candidate, node))
-            if self.loop_matcher.inlier_fraction(scan, reference, match.pose,
-                                                 loops.config.inlier_distance) < loops.config.min_inliers:
-                loops.rejected_match += 1
-                continue
-            total_before = g.chi2()
-            saved = g.poses[: g.n_nodes].copy()
-            edge = g.add_edge(candidate, node, match.pose, self._information(), LOOP)
-            self.optimize_graph()
-            if loops.consistent(g, edge, total_before):
-                loops.accepted += 1
+            z = self.align_loop(candidate, node)
+            if z is not None and self.close_loop(candidate, node, z):
                 return True
+        return False
+
+    def loop_candidates(self, node: int) -> list[int]:
+        """Alg. 7, steps 1–2: nearby nodes inside the 95% ellipse, closest first."""
+        return self.loops.candidates(self.graph, self.node_cov, node)
+
+    def align_loop(self, candidate: int, node: int):
+        """Alg. 7, step 3a: ``node``'s pose in ``candidate``'s frame by Alg. 5, or None when
+        too few of its points land on the candidate's surfaces."""
+        loops, scan = self.loops, self._loop_scan
+        loops.attempts += 1
+        self._load_scan(candidate, scan)
+        reference = self.loop_matcher.build_reference(scan, self.loop_reference)
+        self._load_scan(node, scan)
+        match = self.loop_matcher.align_scans(scan, reference, relative_guess(self.graph, candidate, node))
+        if self.loop_matcher.inlier_fraction(scan, reference, match.pose,
+                                             loops.config.inlier_distance) < loops.config.min_inliers:
+            loops.rejected_match += 1
+            return None
+        return match.pose
+
+    def close_loop(self, candidate: int, node: int, z) -> bool:
+        """Alg. 7, step 3b: add the loop edge, re-optimise (Eq. 21), and keep the edge only if
+        the graph stays consistent; otherwise remove it and restore the poses."""
+        g, loops = self.graph, self.loops
+        if g.n_edges >= g.max_edges:
+            self.status = "capacity reached: no more loop closures"
+            return False
+        total_before = g.chi2()
+        saved = self._saved_poses[: g.n_nodes]
+        saved[:] = g.poses[: g.n_nodes]
+        edge = g.add_edge(candidate, node, z, self._information(), LOOP)
+        try:
+            self.optimize_graph()
+        except FactorCapacityError as exc:  # the graph as it was; localising goes on
             g.remove_last_edge()
             g.poses[: g.n_nodes] = saved
-            loops.rejected_consistency += 1
+            self.status = f"capacity reached: {exc}"
+            return False
+        if loops.consistent(g, edge, total_before):
+            loops.accepted += 1
+            return True
+        g.remove_last_edge()
+        g.poses[: g.n_nodes] = saved
+        loops.rejected_consistency += 1
         return False
 
     def optimize_graph(self):
@@ -208,9 +260,11 @@ class GraphSlam:
     def _start(self, scan, odometry, stamp):
         self.graph.add_node(self.initial_pose, stamp)
         self._store_scan(0, scan)
-        self.matcher.build_reference(scan, self.keyframe_reference)
         self.keyframe = 0
-        self.last_odometry = None if odometry is None else np.asarray(odometry, dtype=float)
+        self.rebuild_keyframe_reference()
+        if odometry is not None:
+            self.last_odometry[:] = odometry
+            self.have_odometry = True
         self._record(stamp)
 
     def _submap_of(self, node, scan):
@@ -249,8 +303,9 @@ class GraphSlam:
         if odometry is None:
             return self.motion  # scans only: assume the last motion continues
         odometry = np.asarray(odometry, dtype=np.float64)
-        delta = np.zeros(3) if self.last_odometry is None else between(odometry, self.last_odometry)
-        self.last_odometry = odometry
+        delta = between(odometry, self.last_odometry) if self.have_odometry else np.zeros(3)
+        self.last_odometry[:] = odometry  # copied: callers may reuse their array
+        self.have_odometry = True
         return delta
 
     def _information(self) -> np.ndarray:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from runtime.pose import compose
+from runtime.pose import between, compose
 
 
 def room_world(seed: int = 0, size=(10.0, 8.0), boxes: int = 6, walls: int = 2,
@@ -81,3 +81,41 @@ def scan_at(segments, pose, angles, max_range=12.0, noise=0.0, rng=None) -> np.n
 def pose_after(pose, motion) -> np.ndarray:
     """The pose reached from ``pose`` by a relative ``motion`` (Eq. 1)."""
     return compose(np.asarray(pose, dtype=np.float64), np.asarray(motion, dtype=np.float64))
+
+
+def loop_path(steps: int, centre=(6.0, 4.5), radii=(3.6, 2.4)) -> np.ndarray:
+    """Poses along an ellipse, heading along the path."""
+    s = np.linspace(0.0, 2 * np.pi, steps, endpoint=False)
+    x = centre[0] + radii[0] * np.cos(s)
+    y = centre[1] + radii[1] * np.sin(s)
+    heading = np.arctan2(radii[1] * np.cos(s), -radii[0] * np.sin(s))
+    return np.c_[x, y, heading]
+
+
+class LoopDrive:
+    """A robot driving lap after lap of :func:`loop_path` in a seeded room: each ``next()``
+    gives the true pose, the integrated noisy wheel odometry and a noisy 360-beam scan.
+    Endless, so soak runs can last as long as asked."""
+
+    def __init__(self, seed: int = 0, steps_per_lap: int = 80, odometry_noise=(0.02, 0.02, 0.01),
+                 range_noise: float = 0.01, beams: int = 360, max_range: float = 12.0):
+        self.path = loop_path(steps_per_lap)
+        self.world = room_world(seed, size=(12.0, 9.0), boxes=14, walls=0, keep_clear=self.path)
+        self.angles = np.linspace(-np.pi, np.pi, beams, endpoint=False)
+        self.max_range = max_range
+        self.range_noise = range_noise
+        self.odometry_noise = np.asarray(odometry_noise, dtype=np.float64)
+        self.rng = np.random.default_rng(seed)
+        self.step = 0
+        self.odometry = self.path[0].copy()
+
+    def next(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        n = len(self.path)
+        truth = self.path[self.step % n]
+        if self.step:
+            previous = self.path[(self.step - 1) % n]
+            motion = between(truth, previous) + self.rng.normal(0.0, self.odometry_noise)
+            self.odometry = compose(self.odometry, motion)
+        ranges = scan_at(self.world, truth, self.angles, self.max_range, self.range_noise, self.rng)
+        self.step += 1
+        return truth, self.odometry.copy(), ranges

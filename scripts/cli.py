@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
 
@@ -56,6 +57,20 @@ def _bench_env(args) -> int:
     return 0
 
 
+def _bench_runtime(args) -> int:
+    from runtime.benchmarks.runtime import bench_runtime, bench_soak
+    from runtime.datasets import find_datasets
+
+    if args.soak is not None:
+        bench_soak(args.soak, args.json)
+    else:
+        bench_runtime(find_datasets(args.data), args.optimizer, args.realtime_minutes,
+                      args.traced_ticks, args.limit, args.json)
+    if args.json:
+        print(f"wrote {args.json}")
+    return 0
+
+
 def _replay(args) -> int:
     from runtime.replay import replay
 
@@ -72,6 +87,40 @@ def _replay(args) -> int:
     if m["status"] != "ok":
         print(f"status: {m['status']}")
     return 0
+
+
+def _lidar(args) -> int:
+    from hardware.live import run_live
+
+    run_live(args.port, args.model, args.mode, args.out, args.rate, args.seconds, args.resume)
+    return 0
+
+
+def _emulate(args) -> int:
+    from hardware.emulator import Faults, VirtualRPLidar
+
+    if args.log:
+        from hardware.sources import CarmenSource
+
+        source, what = CarmenSource(args.log), f"log {args.log}"
+    else:
+        from swarmslam_sim.scanner_source import WorldSource
+
+        source, what = WorldSource(args.world, seed=args.seed), f"world {args.world}"
+    faults = Faults.parse(args.faults or "")
+    emulator = VirtualRPLidar(source, args.model, faults, args.seed, args.link)
+    path = emulator.start()
+    print(f"virtual RPLidar {args.model.upper()} ({what}) on {path}")
+    print(f"connect with: swarmslam lidar --port {path} --model {args.model}")
+    if faults != Faults():
+        print(f"faults: {faults}")
+    print("Ctrl-C to stop", flush=True)
+    try:
+        while True:
+            time.sleep(1.0)
+    finally:
+        emulator.stop()
+        print(f"emulator: {emulator.stats}")
 
 
 def _demo(args) -> int:
@@ -91,6 +140,26 @@ def _demo(args) -> int:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="swarmslam", description=__doc__.split("\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
+
+    models = ["a1", "a2", "a3", "s1", "s2", "c1"]
+    li = sub.add_parser("lidar", help="live SLAM from an RPLidar (or the emulator) at a fixed rate")
+    li.add_argument("--port", required=True, help="serial port, e.g. /dev/rplidar or /dev/ttyUSB0")
+    li.add_argument("--model", default="a1", choices=models)
+    li.add_argument("--mode", default="express", choices=["standard", "express"])
+    li.add_argument("--out", default="swarmslam-live", help="output folder (written on Ctrl-C)")
+    li.add_argument("--rate", type=float, default=10.0, help="SLAM ticks per second")
+    li.add_argument("--seconds", type=float, help="stop after this long (default: Ctrl-C)")
+    li.add_argument("--resume", help="continue a saved session file")
+    li.set_defaults(func=_lidar)
+    em = sub.add_parser("emulate", help="a virtual RPLidar on a pseudo-terminal")
+    source = em.add_mutually_exclusive_group()
+    source.add_argument("--world", default="office", help="simulated world it scans")
+    source.add_argument("--log", help="a CARMEN log it replays instead")
+    em.add_argument("--model", default="a1", choices=models)
+    em.add_argument("--faults", help="e.g. garbage=0.01,corrupt=0.01,stall=10:2,vanish=30:1")
+    em.add_argument("--link", help="also make this symlink point at the port (stable name)")
+    em.add_argument("--seed", type=int, default=0)
+    em.set_defaults(func=_emulate)
 
     demo = sub.add_parser("demo", help="a simulated robot explores the office world with SLAM")
     demo.add_argument("--out", default="swarmslam-demo", help="output folder")
@@ -144,6 +213,19 @@ def build_parser() -> argparse.ArgumentParser:
     env.add_argument("--slam-steps", type=int, default=1000, help="steps timed with SLAM")
     env.add_argument("--json", help="write results here (atomically)")
     env.set_defaults(func=_bench_env)
+    rt = bsub.add_parser("runtime", help="the fixed-rate runtime on Intel: latency, misses, "
+                                          "memory, accuracy; or --soak on simulated scans")
+    rt.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
+    rt.add_argument("--optimizer", default="abc", choices=["abc", "pso", "fa"])
+    rt.add_argument("--realtime-minutes", type=float, default=2.0,
+                    help="minutes of the log replayed at its recorded rate (0: skip; 45: all)")
+    rt.add_argument("--traced-ticks", type=int, default=6000,
+                    help="ticks measured under tracemalloc after warm-up")
+    rt.add_argument("--limit", type=int, help="only the first N scans")
+    rt.add_argument("--soak", type=float, metavar="MINUTES",
+                    help="instead: run this long on simulated scans, sampling memory")
+    rt.add_argument("--json", help="write results here (atomically)")
+    rt.set_defaults(func=_bench_runtime)
     return p
 
 

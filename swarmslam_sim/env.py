@@ -13,7 +13,8 @@ from gymnasium import spaces
 from runtime.pose import between_nb, compose_nb, wrap_angle
 from runtime.scan import PointScan, ranges_to_points
 from runtime.scan_matcher import MatcherConfig
-from runtime.slam import GraphSlam, SlamConfig
+from runtime.fixed_rate import RuntimeConfig, SlamRuntime
+from runtime.slam import SlamConfig
 from swarmslam_sim.lidar import Lidar, lidar_config
 from swarmslam_sim.mapping import crop_probability, world_grid
 from swarmslam_sim.physics import SUBSTEP, Robot, build_space
@@ -145,8 +146,12 @@ class SwarmSlamEnv(gym.Env):
         start[2] = rng.uniform(-math.pi, math.pi)
         self.space = build_space(self.world)
         self.robot = Robot(self.space, start, self.robot_radius)
-        self.slam = (GraphSlam(self.slam_config, seed=int(rng.integers(2**31)), initial_pose=start)
-                     if self.use_slam else None)
+        # The robot's own runtime class, in its lockstep schedule: one tick per env step, the
+        # whole back end each tick, so that a seed gives the same episode bit for bit.
+        self.runtime = (SlamRuntime(self.slam_config, RuntimeConfig(schedule="lockstep"),
+                                    seed=int(rng.integers(2**31)), initial_pose=start)
+                        if self.use_slam else None)
+        self.slam = None if self.runtime is None else self.runtime.slam
         self.true_pose = start.copy()
         self.odometry = start.copy()
         self.estimated_pose = start.copy()
@@ -215,7 +220,7 @@ class SwarmSlamEnv(gym.Env):
         scan.count = ranges_to_points(ranges, self.lidar.angles, lc.min_range, lc.max_range, scan.buffer)
         if self.slam is not None and scan.count > 0:
             t0 = time.perf_counter()
-            result = self.slam.step(scan, self.odometry, self.steps * self.dt)
+            result = self.runtime.process(scan, self.odometry, self.steps * self.dt)
             self.slam_ms = 1e3 * (time.perf_counter() - t0)
             self.estimated_pose = result.pose
             if result.node_added:
@@ -287,7 +292,7 @@ class SwarmSlamEnv(gym.Env):
             "odometry": self.odometry.copy(),
             "slam_nodes": 0 if slam is None else slam.graph.n_nodes,
             "loop_closures": 0 if slam is None else slam.loops.accepted,
-            "slam_status": "off" if slam is None else slam.status,
+            "slam_status": "off" if slam is None else self.runtime.status,
         }
         if self.timing_in_info:
             info["slam_ms"] = self.slam_ms

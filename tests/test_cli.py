@@ -6,7 +6,7 @@ import json
 import numpy as np
 
 from runtime.carmen import flaser_angles
-from runtime.demo import loop_path
+from runtime.synthetic import loop_path
 from runtime.synthetic import room_world, scan_at
 from scripts.cli import main
 

@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from runtime.demo import loop_path
+from runtime.synthetic import loop_path
 from runtime.map_io import read_pgm, write_map
 from runtime.metrics import kummerle
 from runtime.pose import between, compose

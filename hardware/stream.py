@@ -1,0 +1,267 @@
+"""Stream parsers: bytes as they arrive → samples, resynchronising after damage (B9).
+
+Nothing here raises on bad data. A damaged stream costs the samples it damaged, counted in
+:class:`StreamStats`; every good packet after it is decoded. Parsers hand each sample to a
+sink's ``add(start, quality, angle_q6, distance_q2)`` (:class:`hardware.rotation.Rotations`).
+
+* Responses: :func:`find_descriptor` skips to the next ``A5 5A`` as the SDK's header state
+  machine does.
+* Standard nodes (no checksum): slide byte by byte until the flag bits are right (S ≠ ¬S,
+  C = 1) *and* the angle follows the previous one (a step back of more than 2°, or forward of
+  more than 30°, without the new-rotation flag is a misaligned read; a new-rotation node must
+  lie within 30° past 0°, after an angle in the previous half turn). After damage the parser
+  looks 16 bytes ahead and resumes at the first node that lies within 5° of the last good one
+  (unless an overlapping one is also followed by a node), else at the first node followed by
+  a node; after 10 bytes without a node the angle check restarts, so a false node cannot lock
+  the parser out.
+* Capsules (express 0x82, dense 0x85): slide until the sync nibbles match; a checksum mismatch
+  drops the capsule and its cached predecessor (the SDK's rule). The mismatch counts as a
+  checksum error once the parser has passed its 84 bytes without finding a good capsule inside
+  them — otherwise it was a false sync inside garbage (a resync), and nothing is dropped — so
+  garbage never costs the capsules around it. After damage a capsule is taken only if a good
+  capsule follows it in angle order within 32 bytes (sync nibbles and the 8-bit sum pass by
+  chance once in 65,536 positions slid over; this makes a false capsule ~10⁶ times rarer).
+  The angle chain survives garbage between two good capsules; a start angle jumping more than ``max_capsule_step`` from its predecessor
+  (a lost capsule) restarts it.
+"""
+
+from __future__ import annotations
+
+from hardware.protocol import (
+    CAPSULE_LEN,
+    DESCRIPTOR_LEN,
+    FULL_CIRCLE_Q6,
+    NODE_LEN,
+    SYNC,
+    SYNC2,
+    capsule_samples,
+    check_capsule,
+    decode_capsule,
+    decode_descriptor,
+    decode_node,
+)
+
+
+class StreamStats:
+    FIELDS = ("bytes", "samples", "rotations", "checksum_errors", "resyncs", "dropped_bytes",
+              "timeouts", "reconnects")
+
+    def __init__(self):
+        for name in self.FIELDS:
+            setattr(self, name, 0)
+
+    def as_dict(self) -> dict:
+        return {name: getattr(self, name) for name in self.FIELDS}
+
+
+def find_descriptor(buffer: bytearray, stats: StreamStats | None = None):
+    """The first response descriptor in ``buffer``: ``(descriptor, bytes consumed)``; bytes
+    before it are dropped (counted). ``None`` if no complete descriptor is there yet (the
+    buffer keeps a trailing ``A5`` that may start one)."""
+    i = 0
+    while True:
+        j = buffer.find(bytes((SYNC, SYNC2)), i)
+        if j < 0:
+            keep = 1 if buffer[-1:] == bytes((SYNC,)) else 0
+            _drop(buffer, len(buffer) - keep, stats)
+            return None
+        if len(buffer) - j < DESCRIPTOR_LEN:
+            _drop(buffer, j, stats)
+            return None
+        descriptor = decode_descriptor(buffer[j : j + DESCRIPTOR_LEN])
+        _drop(buffer, j, stats)
+        del buffer[:DESCRIPTOR_LEN]
+        return descriptor, j + DESCRIPTOR_LEN
+
+
+def _drop(buffer: bytearray, n: int, stats) -> None:
+    if n > 0:
+        del buffer[:n]
+        if stats is not None:
+            stats.dropped_bytes += n
+            stats.resyncs += 1
+
+
+class _Parser:
+    def __init__(self, sink, stats: StreamStats | None):
+        self.sink = sink
+        self.stats = stats or StreamStats()
+        self.buffer = bytearray()
+        self.resyncing = False
+
+    def _append(self, data) -> tuple[bytearray, int]:
+        self.buffer += data
+        self.stats.bytes += len(data)
+        return self.buffer, len(self.buffer)
+
+
+class NodeStream(_Parser):
+    """Standard-scan nodes (answer type 0x81)."""
+
+    BACK_Q6 = 2 * 64
+    FORWARD_Q6 = 30 * 64
+    NEAR_Q6 = 5 * 64
+    WINDOW = 16  # bytes looked ahead when resynchronising
+
+    def __init__(self, sink, stats: StreamStats | None = None):
+        super().__init__(sink, stats)
+        self.last_angle = -1  # unknown
+        self.missed = 0  # bytes skipped since the last good node
+
+    def feed(self, data) -> None:
+        buf, n = self._append(data)
+        stats, i = self.stats, 0
+        while n - i >= 2 * NODE_LEN:  # a node is judged with its successor in view
+            node = decode_node(buf, i)
+            # a node near the last one is taken; after damage it must also be followed by one
+            if not (self._close(node, self.last_angle)
+                    and (not self.resyncing or self._ahead(buf, i, node))):
+                if n - i < self.WINDOW + 2 * NODE_LEN:
+                    break  # damage suspected: decide with enough bytes in view
+                j = self._resync_offset(buf, i)
+                if j != i:
+                    self._skip(j - i if j >= 0 else 1)
+                    i = j if j >= 0 else i + 1
+                    continue
+            start, quality, angle_q6, distance_q2 = node
+            self.last_angle = angle_q6
+            self.missed = 0
+            self.resyncing = False
+            stats.samples += 1
+            self.sink.add(start, quality, angle_q6, distance_q2)
+            i += NODE_LEN
+        del buf[:i]
+
+    def _follows(self, node, last_angle: int) -> bool:
+        if node is None:
+            return False
+        start, _, angle, _ = node
+        if angle >= FULL_CIRCLE_Q6:
+            return False
+        if start:  # the first sample past 0°, after the last one of the turn before
+            return angle < self.FORWARD_Q6 and (last_angle < 0 or last_angle - angle > FULL_CIRCLE_Q6 // 2)
+        if last_angle < 0:
+            return True
+        step = angle - last_angle
+        return -self.BACK_Q6 <= step <= self.FORWARD_Q6
+
+    def _close(self, node, last_angle: int) -> bool:
+        """Follows ``last_angle`` within a few samples (a new rotation's node: as it should)."""
+        if not self._follows(node, last_angle):
+            return False
+        if last_angle < 0:
+            return True
+        if node[0]:
+            return node[2] <= self.NEAR_Q6 and last_angle >= FULL_CIRCLE_Q6 - self.NEAR_Q6
+        return 0 <= node[2] - last_angle <= self.NEAR_Q6
+
+    def _ahead(self, buf, i: int, node) -> bool:
+        return self._follows(decode_node(buf, i + NODE_LEN), node[2])
+
+    def _resync_offset(self, buf, i: int) -> int:
+        """Where the stream resumes, looking up to WINDOW bytes ahead: the first node near
+        the last good one — unless a node overlapping it is near *and* followed by a node
+        (then that one: both cannot be real) — else the first node followed by a node; -1 if
+        none."""
+        first_close = first_ahead = -1
+        for j in range(i, i + self.WINDOW):
+            if first_close >= 0 and j >= first_close + NODE_LEN:
+                break
+            node = decode_node(buf, j)
+            if not self._follows(node, self.last_angle):
+                continue
+            ahead = self._ahead(buf, j, node)
+            if self._close(node, self.last_angle):
+                if ahead:
+                    return j
+                if first_close < 0:
+                    first_close = j
+            elif ahead and first_ahead < 0:
+                first_ahead = j
+        return first_close if first_close >= 0 else first_ahead
+
+    def _skip(self, count: int) -> None:
+        self.stats.dropped_bytes += count
+        if not self.resyncing:
+            self.resyncing = True
+            self.stats.resyncs += 1
+        self.missed += count
+        if self.missed > 2 * NODE_LEN:
+            self.last_angle = -1
+
+
+class CapsuleStream(_Parser):
+    """Express (0x82, 32 samples) or dense (0x85, 40 samples) capsules."""
+
+    GAP = 32  # bytes of garbage tolerated between a capsule and the one confirming it
+
+    def __init__(self, sink, dense: bool = False, stats: StreamStats | None = None,
+                 max_capsule_step_deg: float = 90.0):
+        super().__init__(sink, stats)
+        self.dense = dense
+        self.previous = None  # the capsule waiting for its successor's start angle
+        self.max_step_q6 = int(max_capsule_step_deg * 64)
+        self.suspect_end = 0  # bytes left of a capsule whose checksum failed (0: none)
+
+    def feed(self, data) -> None:
+        buf, n = self._append(data)
+        stats, i = self.stats, 0
+        while n - i >= CAPSULE_LEN:
+            status = check_capsule(buf, i)
+            if status == 0 and (self.suspect_end > 0 or self.resyncing):
+                # after damage a capsule counts only if a good one follows it in angle order
+                # (up to GAP bytes of garbage between): sync nibbles and an 8-bit sum pass by
+                # chance once in 65,536 positions
+                if n - i < 2 * CAPSULE_LEN + self.GAP:
+                    break
+                if not self._confirmed(buf, i):
+                    status = 1
+            if status == 0:
+                if self.suspect_end > 0:  # a good capsule inside the suspect: a false sync
+                    self.suspect_end = 0
+                    stats.resyncs += 1
+                capsule = decode_capsule(buf, i, self.dense)
+                self._chain(capsule)
+                self.resyncing = False
+                i += CAPSULE_LEN
+                continue
+            if status == 2 and self.suspect_end <= 0:
+                self.suspect_end = CAPSULE_LEN
+            self._skip()
+            i += 1
+        del buf[:i]
+
+    def _skip(self) -> None:
+        self.stats.dropped_bytes += 1
+        if self.suspect_end > 0:
+            self.suspect_end -= 1
+            if self.suspect_end == 0:  # 84 bytes with no good capsule: it was corrupt
+                self.stats.checksum_errors += 1
+                self.previous = None  # its successor's angles cannot be trusted across it
+            self.resyncing = True
+            return
+        if not self.resyncing:
+            self.resyncing = True
+            self.stats.resyncs += 1
+
+    def _confirmed(self, buf, i: int) -> bool:
+        start = (buf[i + 2] | (buf[i + 3] << 8)) & 0x7FFF
+        for j in range(i + CAPSULE_LEN, i + CAPSULE_LEN + self.GAP + 1):
+            if check_capsule(buf, j) == 0:
+                following = (buf[j + 2] | (buf[j + 3] << 8)) & 0x7FFF
+                if (following - start) % FULL_CIRCLE_Q6 <= self.max_step_q6:
+                    return True
+        return False
+
+    def _chain(self, capsule) -> None:
+        previous = self.previous
+        self.previous = capsule
+        if capsule.start or previous is None:
+            return  # a new chain: this capsule's samples wait for the next one
+        step = (capsule.start_angle_q6 - previous.start_angle_q6) % FULL_CIRCLE_Q6
+        if step > self.max_step_q6:
+            self.stats.resyncs += 1  # out of order: the chain restarts here
+            return
+        for start, quality, angle_q6, distance_q2 in capsule_samples(previous, capsule.start_angle_q6):
+            self.stats.samples += 1
+            self.sink.add(start, quality, angle_q6, distance_q2)

@@ -1,0 +1,278 @@
+"""``swarmslam bench runtime``: the fixed-rate runtime on the Intel raw log, and a soak run.
+
+Three passes over ``radish/intel.clf.gz`` (one core, budgeted schedule unless said):
+
+1. *max speed*: every scan, one tick each, back to back — per-tick latency median/p99/max,
+   deadline misses at 10 Hz, peak RSS and RSS growth after warm-up, accuracy against the
+   relations, beside the unsliced (lockstep) replay of the same log;
+2. *traced*: the first scans again under tracemalloc — traced bytes per tick after warm-up;
+3. *recorded rate*: a producer thread hands scans over at their logged times and the loop
+   ticks at 10 Hz on the wall clock, for ``realtime_minutes`` of the log (45 min in all).
+
+``--soak MINUTES`` instead drives the runtime for that long on simulated scans
+(:class:`runtime.synthetic.LoopDrive`), sampling RSS and traced memory each minute.
+Targets (issue 6): 0 misses, p99 ≤ 20 ms, RSS growth ≤ 1 MB, 0 traced bytes per tick.
+"""
+
+from __future__ import annotations
+
+import gc
+import threading
+import time
+import tracemalloc
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from runtime.carmen import read_carmen
+from runtime.datasets import require
+from runtime.fixed_rate import RuntimeConfig, SlamRuntime
+from runtime.metrics import kummerle
+from runtime.pose import compose
+from runtime.progress import Progress
+from runtime.relations import read_relations
+from runtime.replay import replay, slam_config
+from runtime.scan import PointScan
+from runtime.synthetic import LoopDrive
+from runtime.writers import write_json_atomic
+
+WARM_UP = 1000  # scans before RSS and traced memory are taken as the baseline
+
+
+def rss_kib() -> tuple[int, int]:
+    """(current, peak) resident set size of this process, KiB (Linux /proc)."""
+    fields = {}
+    with open("/proc/self/status") as f:
+        for line in f:
+            key, _, value = line.partition(":")
+            if key in ("VmRSS", "VmHWM"):
+                fields[key] = int(value.split()[0])
+    return fields.get("VmRSS", 0), fields.get("VmHWM", 0)
+
+
+def robot_frame_scans(log):
+    """Each laser record's points in the robot frame, as (points, count, odometry, stamp)."""
+    out = []
+    scan = PointScan(max(len(r.ranges) for r in log.lasers))
+    for r in log.lasers:
+        scan.set_ranges(r.ranges, r.angles, 0.0, r.max_range)
+        pts = scan.buffer[: scan.count].copy()
+        if np.any(r.laser_offset):
+            pts = compose(r.laser_offset, np.c_[pts, np.zeros(len(pts))])[:, :2].copy()
+        out.append((pts, len(pts), np.asarray(r.odometry, dtype=np.float64), r.timestamp))
+    return out
+
+
+def max_speed(scans, relations, config, runtime_config, echo) -> dict:
+    runtime = SlamRuntime(config, runtime_config)
+    warm = runtime.warm_up()
+    latency = np.zeros(len(scans))
+    rss_after_warm_up = 0
+    progress = Progress(len(scans), "runtime max speed")
+    clock = time.perf_counter
+    start = clock()
+    for k, (pts, n, odometry, stamp) in enumerate(scans):
+        runtime.inbox.put_points(pts, n, stamp, odometry)
+        t0 = clock()
+        runtime.tick()
+        latency[k] = clock() - t0
+        if k == WARM_UP:
+            rss_after_warm_up = rss_kib()[0]
+        progress.update(note=f"nodes {runtime.slam.graph.n_nodes}")
+    runtime.drain()
+    progress.close()
+    wall = clock() - start
+    rss_end, rss_peak = rss_kib()
+    stamps, poses = runtime.trajectory()
+    report = runtime.report()
+    out = {
+        "scans": len(scans),
+        "wall_seconds": wall,
+        "real_time_factor": (scans[-1][3] - scans[0][3]) / wall,
+        "latency_ms_median": float(1e3 * np.median(latency)),
+        "latency_ms_p99": float(1e3 * np.percentile(latency, 99)),
+        "latency_ms_max": float(1e3 * latency.max()),
+        "deadline_misses_10hz": int(np.sum(latency > runtime_config.period)),
+        "over_budget_ticks": int(np.sum(latency > runtime_config.tick_budget)),
+        "rss_mib_peak": rss_peak / 1024,
+        "rss_mib_committed_at_start": runtime.reserved_bytes / 2**20,
+        "warm_up_seconds": warm,
+        "rss_mib_growth_after_warm_up": (rss_end - rss_after_warm_up) / 1024,
+        "runtime": report,
+    }
+    out.update(kummerle(stamps, poses, relations))
+    return out
+
+
+def traced(scans, config, runtime_config, ticks) -> dict:
+    """Traced memory growth per tick after warm-up, in two consecutive windows (tracemalloc
+    slows Python: run apart from the timed pass). A per-tick leak grows alike in both."""
+    runtime = SlamRuntime(config, runtime_config)
+
+    def run(chunk):
+        for pts, n, odometry, stamp in chunk:
+            runtime.inbox.put_points(pts, n, stamp, odometry)
+            runtime.tick()
+        gc.collect()
+        return tracemalloc.get_traced_memory()[0]
+
+    half = ticks // 2
+    tracemalloc.start()
+    try:
+        start = run(scans[:WARM_UP])
+        middle = run(scans[WARM_UP : WARM_UP + half])
+        end = run(scans[WARM_UP + half : WARM_UP + 2 * half])
+    finally:
+        tracemalloc.stop()
+    windows = [middle - start, end - middle]
+    return {"ticks": 2 * half, "traced_bytes_growth": windows[0] + windows[1],
+            "traced_bytes_per_tick": (windows[0] + windows[1]) / max(2 * half, 1),
+            "windows_bytes": windows, "nodes": int(runtime.slam.graph.n_nodes)}
+
+
+def recorded_rate(scans, config, runtime_config, minutes: float, echo) -> dict:
+    """Scans handed over at their logged times by a producer thread; ticks on the wall clock."""
+    t_first = scans[0][3]
+    chosen = [s for s in scans if s[3] - t_first <= 60.0 * minutes]
+    runtime = SlamRuntime(config, runtime_config)
+    runtime.warm_up()
+    stop = threading.Event()
+    latencies = []
+
+    def produce():
+        start = time.perf_counter()
+        for pts, n, odometry, stamp in chosen:
+            wait = (stamp - t_first) - (time.perf_counter() - start)
+            if wait > 0 and stop.wait(wait):
+                return
+            runtime.inbox.put_points(pts, n, stamp, odometry)
+        stop.wait(0.5)  # let the last scan be taken
+        stop.set()
+
+    def on_tick(rt, result):
+        latencies.append(rt.stats.latency[(rt.stats.scans - 1) % rt.stats.latency.shape[0]]
+                         if result is not None else 0.0)
+
+    producer = threading.Thread(target=produce, daemon=True)
+    producer.start()
+    runtime.run(stop, on_tick=on_tick)
+    producer.join()
+    lat = np.array([v for v in latencies if v > 0]) if latencies else np.zeros(1)
+    report = runtime.report()
+    return {
+        "minutes": minutes,
+        "scans_offered": len(chosen),
+        "ticks": report["ticks"],
+        "scans_processed": report["scans"],
+        "stale_scans": report["stale_scans"],
+        "deadline_misses": report["deadline_misses"],
+        "latency_ms_median": float(1e3 * np.median(lat)),
+        "latency_ms_p99": float(1e3 * np.percentile(lat, 99)),
+        "latency_ms_max": float(1e3 * lat.max()),
+    }
+
+
+def bench_runtime(data_dir: Path, optimizer="abc", realtime_minutes=2.0, traced_ticks=6000,
+                  limit=None, json_path=None, echo=print) -> dict:
+    log_path = require(Path(data_dir) / "radish" / "intel.clf.gz")
+    rel_path = require(Path(data_dir) / "radish" / "intel.relations")
+    log = read_carmen(log_path)
+    if limit:
+        log.lasers = log.lasers[:limit]
+    scans = robot_frame_scans(log)
+    relations = read_relations(rel_path)
+    config = replace(slam_config(optimizer), max_scans=len(scans) + 1)
+    rc = RuntimeConfig(rate_hz=10.0)
+    result = {"benchmark": "runtime", "log": str(log_path), "optimizer": optimizer,
+              "runtime_config": {"rate_hz": rc.rate_hz, "tick_budget_s": rc.tick_budget}}
+    result["max_speed"] = max_speed(scans, relations, config, rc, echo)
+    unsliced = replay(log_path, rel_path, optimizer, True, None, limit, label="unsliced")
+    result["unsliced"] = {k: unsliced[k] for k in ("eT", "eT_std", "eR_deg", "eR_std",
+                                                   "loops_accepted", "latency_ms_p99")}
+    result["traced"] = traced(scans, config, rc, traced_ticks)
+    if realtime_minutes > 0:
+        result["recorded_rate"] = recorded_rate(scans, config, rc, realtime_minutes, echo)
+    echo(format_runtime(result))
+    if json_path:
+        write_json_atomic(json_path, result)
+    return result
+
+
+def format_runtime(r) -> str:
+    f, u, t = r["max_speed"], r["unsliced"], r["traced"]
+    lines = [
+        f"Intel through the fixed-rate runtime ({r['optimizer']}, 10 Hz, tick budget "
+        f"{1e3 * r['runtime_config']['tick_budget_s']:.0f} ms)",
+        f"  max speed: {f['scans']} scans in {f['wall_seconds']:.1f} s "
+        f"({f['real_time_factor']:.1f}x real time)",
+        f"    latency ms: median {f['latency_ms_median']:.2f}  p99 {f['latency_ms_p99']:.2f}  "
+        f"max {f['latency_ms_max']:.1f}   (target p99 <= 20)",
+        f"    deadline misses at 10 Hz: {f['deadline_misses_10hz']}   (target 0); over the "
+        f"{1e3 * r['runtime_config']['tick_budget_s']:.0f} ms budget: {f['over_budget_ticks']}",
+        f"    RSS: peak {f['rss_mib_peak']:.1f} MiB ({f['rss_mib_committed_at_start']:.0f} MiB of "
+        f"capacity committed at start-up), growth after warm-up "
+        f"{f['rss_mib_growth_after_warm_up']:.2f} MiB   (target <= 1 MB)",
+        f"    accuracy: eT {f['eT']:.4f} m  eR {f['eR_deg']:.3f} deg; unsliced replay "
+        f"eT {u['eT']:.4f} m  eR {u['eR_deg']:.3f} deg",
+        f"  traced: {t['traced_bytes_growth']} B over {t['ticks']} ticks = "
+        f"{t['traced_bytes_per_tick']:.2f} B/tick (windows: {t['windows_bytes'][0]} B, then "
+        f"{t['windows_bytes'][1]} B)   (target 0)",
+    ]
+    if "recorded_rate" in r:
+        q = r["recorded_rate"]
+        lines.append(
+            f"  recorded rate ({q['minutes']:g} min of log): {q['scans_processed']}/"
+            f"{q['scans_offered']} scans, {q['stale_scans']} stale, {q['deadline_misses']} "
+            f"misses, latency ms median {q['latency_ms_median']:.2f} p99 "
+            f"{q['latency_ms_p99']:.2f} max {q['latency_ms_max']:.1f}")
+    return "\n".join(lines)
+
+
+def bench_soak(minutes: float, json_path=None, echo=print, seed=0) -> dict:
+    """The runtime for ``minutes`` of wall time on simulated scans, back to back."""
+    from runtime.slam import SlamConfig
+
+    drive = LoopDrive(seed)
+    config = SlamConfig(max_nodes=2000, max_edges=8000, max_scans=1_000_000)
+    rc = RuntimeConfig(rate_hz=10.0)
+    runtime = SlamRuntime(config, rc, seed=seed)
+    runtime.warm_up()
+    scan = PointScan(len(drive.angles))
+    samples = []
+    latency_max = 0.0
+    end = time.perf_counter() + 60.0 * minutes
+    next_sample = time.perf_counter()
+    tracemalloc.start()
+    k = 0
+    try:
+        while time.perf_counter() < end:
+            _, odometry, ranges = drive.next()
+            scan.set_ranges(ranges, drive.angles, 0.05, drive.max_range)
+            t0 = time.perf_counter()
+            runtime.process(scan, odometry, 0.18 * k)
+            latency_max = max(latency_max, time.perf_counter() - t0)
+            k += 1
+            if time.perf_counter() >= next_sample:
+                gc.collect()
+                samples.append({"tick": k, "rss_mib": rss_kib()[0] / 1024,
+                                "traced_kib": tracemalloc.get_traced_memory()[0] / 1024,
+                                "nodes": int(runtime.slam.graph.n_nodes)})
+                echo(f"soak: {samples[-1]}")
+                next_sample += 60.0
+    finally:
+        tracemalloc.stop()
+    report = runtime.report()
+    first = samples[1] if len(samples) > 1 else samples[0]
+    result = {"benchmark": "runtime-soak", "minutes": minutes, "ticks": k, "samples": samples,
+              "rss_mib_growth_after_first_minute": samples[-1]["rss_mib"] - first["rss_mib"],
+              "traced_kib_growth_after_first_minute": samples[-1]["traced_kib"]
+              - first["traced_kib"],
+              "latency_ms_max": 1e3 * latency_max, "runtime": report}
+    echo(f"soak {minutes:g} min: {k} ticks; RSS growth after the first minute "
+         f"{result['rss_mib_growth_after_first_minute']:.2f} MiB, traced "
+         f"{result['traced_kib_growth_after_first_minute']:.1f} KiB; p99 "
+         f"{report['latency_ms_p99']:.1f} ms; status {report['status']}")
+    if json_path:
+        write_json_atomic(json_path, result)
+    return result
