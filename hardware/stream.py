@@ -18,9 +18,11 @@ sink's ``add(start, quality, angle_q6, distance_q2)`` (:class:`hardware.rotation
   drops the capsule and its cached predecessor (the SDK's rule). The mismatch counts as a
   checksum error once the parser has passed its 84 bytes without finding a good capsule inside
   them — otherwise it was a false sync inside garbage (a resync), and nothing is dropped — so
-  garbage never costs the capsules around it. After damage a capsule is taken only if a good
-  capsule follows it in angle order within 32 bytes (sync nibbles and the 8-bit sum pass by
-  chance once in 65,536 positions slid over; this makes a false capsule ~10⁶ times rarer).
+  garbage never costs the capsules around it. After damage a capsule is taken only if its
+  start angle lies a whole number of capsule steps (±¼) past the last good one and a good
+  capsule follows it, within 32 bytes of garbage, one step on (sync nibbles and the 8-bit sum
+  pass by chance once in 65,536 positions slid over; these checks make a false capsule
+  thousands of times rarer still).
   The angle chain survives garbage between two good capsules; a start angle jumping more than ``max_capsule_step`` from its predecessor
   (a lost capsule) restarts it.
 """
@@ -190,6 +192,10 @@ class NodeStream(_Parser):
             self.last_angle = -1
 
 
+def _start_q6(buf, i: int) -> int:
+    return (buf[i + 2] | (buf[i + 3] << 8)) & 0x7FFF
+
+
 class CapsuleStream(_Parser):
     """Express (0x82, 32 samples) or dense (0x85, 40 samples) capsules."""
 
@@ -202,6 +208,9 @@ class CapsuleStream(_Parser):
         self.previous = None  # the capsule waiting for its successor's start angle
         self.max_step_q6 = int(max_capsule_step_deg * 64)
         self.suspect_end = 0  # bytes left of a capsule whose checksum failed (0: none)
+        self.last_start = -1  # start angle of the last good capsule
+        self.step_q6 = 0  # start-angle step between consecutive capsules (0: not seen yet)
+        self.skipped = 0  # bytes slid over since the last good capsule
 
     def feed(self, data) -> None:
         buf, n = self._append(data)
@@ -209,9 +218,9 @@ class CapsuleStream(_Parser):
         while n - i >= CAPSULE_LEN:
             status = check_capsule(buf, i)
             if status == 0 and (self.suspect_end > 0 or self.resyncing):
-                # after damage a capsule counts only if a good one follows it in angle order
-                # (up to GAP bytes of garbage between): sync nibbles and an 8-bit sum pass by
-                # chance once in 65,536 positions
+                # after damage a capsule counts only if its angle continues the chain and a
+                # good capsule follows it (up to GAP bytes of garbage later), one step on:
+                # sync nibbles and an 8-bit sum pass by chance once in 65,536 positions
                 if n - i < 2 * CAPSULE_LEN + self.GAP:
                     break
                 if not self._confirmed(buf, i):
@@ -233,6 +242,7 @@ class CapsuleStream(_Parser):
 
     def _skip(self) -> None:
         self.stats.dropped_bytes += 1
+        self.skipped += 1
         if self.suspect_end > 0:
             self.suspect_end -= 1
             if self.suspect_end == 0:  # 84 bytes with no good capsule: it was corrupt
@@ -245,17 +255,34 @@ class CapsuleStream(_Parser):
             self.stats.resyncs += 1
 
     def _confirmed(self, buf, i: int) -> bool:
-        start = (buf[i + 2] | (buf[i + 3] << 8)) & 0x7FFF
+        start = _start_q6(buf, i)
+        if self.last_start >= 0 and self.skipped <= 4 * CAPSULE_LEN:  # else: start afresh
+            lost = 2 + self.skipped // CAPSULE_LEN  # capsules the damage may have taken
+            if not self._steps(start - self.last_start, lost):
+                return False
         for j in range(i + CAPSULE_LEN, i + CAPSULE_LEN + self.GAP + 1):
-            if check_capsule(buf, j) == 0:
-                following = (buf[j + 2] | (buf[j + 3] << 8)) & 0x7FFF
-                if (following - start) % FULL_CIRCLE_Q6 <= self.max_step_q6:
-                    return True
+            if check_capsule(buf, j) == 0 and self._steps(_start_q6(buf, j) - start, 1):
+                return True
+        return False
+
+    def _steps(self, delta_q6: int, most: int) -> bool:
+        """Is ``delta`` 1..``most`` capsule steps (±¼ step), or, before a step was seen, a
+        forward move within ``max_capsule_step``?"""
+        delta = delta_q6 % FULL_CIRCLE_Q6
+        if self.step_q6 <= 0:
+            return 0 < delta <= self.max_step_q6 * most
+        for m in range(1, most + 1):
+            if abs(delta - m * self.step_q6) <= self.step_q6 // 4:
+                return True
         return False
 
     def _chain(self, capsule) -> None:
         previous = self.previous
         self.previous = capsule
+        if previous is not None and self.skipped == 0:
+            self.step_q6 = (capsule.start_angle_q6 - previous.start_angle_q6) % FULL_CIRCLE_Q6
+        self.last_start = capsule.start_angle_q6
+        self.skipped = 0
         if capsule.start or previous is None:
             return  # a new chain: this capsule's samples wait for the next one
         step = (capsule.start_angle_q6 - previous.start_angle_q6) % FULL_CIRCLE_Q6

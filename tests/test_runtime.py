@@ -267,6 +267,7 @@ SOAK_PROBE = textwrap.dedent(
     angles, records = recorded_drive(80)  # one lap, driven again and again
     config = replace(QUICK, max_nodes=500, max_edges=2500, max_scans=20000)
     runtime = SlamRuntime(config, RuntimeConfig(tick_budget=0.05))
+    runtime.warm_up()
     scans = []
     for _, _, ranges in records:
         s = PointScan(len(angles))
@@ -298,27 +299,30 @@ SOAK_PROBE = textwrap.dedent(
 def test_no_traced_memory_growth_over_ten_thousand_ticks_after_warm_up():
     """10⁴ budgeted ticks after a warm-up in which the graph grew to its node capacity
     (matching, node insertion, loop search, optimisation, capacity reached): traced memory at
-    tick boundaries must not grow with the ticks. Run in a fresh interpreter, as a robot's
-    process would be (what other tests left in this one would be measured too).
+    tick boundaries must not grow with the ticks.
 
     Any object kept per tick would add ≥ 24 B each tick (≥ 240 kB here); what remains
     measured is a few kB of 50–60 B blocks allocated inside numba's and numpy's C calls, at a
     rate that falls over the process's life, which the bound below tolerates."""
-    code = SOAK_PROBE.format(tests=os.path.dirname(__file__))
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          cwd=os.path.dirname(os.path.dirname(__file__)), timeout=900)
-    assert done.returncode == 0, done.stderr
-    result = json.loads(done.stdout.strip().splitlines()[-1])
+    result = probe(SOAK_PROBE)
     warm, end = result["warm"], result["end"]
     assert warm["nodes"] == 500 and warm["loops_accepted"] > 20
     assert "capacity reached" in end["status"] and end["scans"] == 12_000
     assert result["growth"] <= 10_000, f"traced memory grew {result['growth']} B over 10⁴ ticks"
 
 
-def test_graph_growth_allocates_nothing_that_stays():
-    """Node insertion, loop search and optimisation work in preallocated buffers."""
+GROWTH_PROBE = textwrap.dedent(
+    """
+    import gc, json, sys, tracemalloc
+    from dataclasses import replace
+    sys.path.insert(0, {tests!r})
+    from test_runtime import LOCKSTEP, QUICK, recorded_drive
+    from runtime.fixed_rate import SlamRuntime
+    from runtime.scan import PointScan
+
     angles, records = recorded_drive(80)
     runtime = SlamRuntime(replace(QUICK, max_nodes=600, max_edges=3000), LOCKSTEP)
+    runtime.warm_up()
     scan = PointScan(len(angles))
 
     def drive(first, count):
@@ -328,20 +332,35 @@ def test_graph_growth_allocates_nothing_that_stays():
             runtime.process(scan, odometry, float(k))
 
     tracemalloc.start()
-    try:
-        drive(0, 400)
-        gc.collect()
-        nodes, before = runtime.slam.graph.n_nodes, tracemalloc.get_traced_memory()[0]
-        drive(400, 500)
-        gc.collect()
-        after = tracemalloc.get_traced_memory()[0]
-    finally:
-        tracemalloc.stop()
-    added = runtime.slam.graph.n_nodes - nodes
-    assert added >= 150 and runtime.slam.loops.accepted > 20
+    drive(0, 400)
+    gc.collect()
+    nodes, before = runtime.slam.graph.n_nodes, tracemalloc.get_traced_memory()[0]
+    drive(400, 500)
+    gc.collect()
+    after = tracemalloc.get_traced_memory()[0]
+    print(json.dumps({{"added": runtime.slam.graph.n_nodes - nodes, "growth": after - before,
+                      "loops": runtime.slam.loops.accepted}}))
+    """
+)
+
+
+def probe(template: str) -> dict:
+    """Run a measurement in a fresh interpreter, as a robot's process would be (what other
+    tests left in this one would be measured too)."""
+    code = template.format(tests=os.path.dirname(__file__))
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          cwd=os.path.dirname(os.path.dirname(__file__)), timeout=900)
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def test_graph_growth_allocates_nothing_that_stays():
+    """Node insertion, loop search and optimisation work in preallocated buffers."""
+    result = probe(GROWTH_PROBE)
+    assert result["added"] >= 150 and result["loops"] > 20
     # Before the capacity buffers, the sparsity pattern alone grew by ~400 B per node, and the
     # qdldl solver's scipy round trips kept more; now it is the C-call residue above.
-    assert after - before < 100 * added, (after - before, added)
+    assert result["growth"] < 100 * result["added"], result
 
 
 def test_run_ticks_at_its_rate_and_stops_on_request():
