@@ -51,6 +51,8 @@ class RuntimeConfig:
     loop_queue: int = 64  # nodes awaiting their loop search
     max_deferred_ticks: int = 10  # a back-end slice waits at most this long, then runs
     latency_window: int = 4096  # recent tick latencies kept for the median / p99
+    # Back every buffer with memory at start-up (None: when the schedule is budgeted).
+    commit_memory: bool | None = None
 
     def __post_init__(self):
         if self.schedule not in SCHEDULES:
@@ -148,8 +150,9 @@ class SlamRuntime:
         self.odometry = np.zeros(3)
         self.front_end_cost = 0.0  # s per tick at the full evaluation budget (running mean)
         self.last: StepResult | None = None
-        self.reserved_bytes = commit_memory(self)
-
+        # A robot commits its capacities now; a simulator making an env per episode need not.
+        commit = c.commit_memory if c.commit_memory is not None else c.schedule == "budgeted"
+        self.reserved_bytes = commit_memory(self) if commit else 0
 
     # ------------------------------------------------------------------ Alg. 4, one tick
     def tick(self, deadline: float | None = None) -> StepResult | None:

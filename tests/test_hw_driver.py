@@ -179,3 +179,31 @@ def test_faults_parse_and_refuse_unknown_ones():
         (0.01, 0.02, 10.0, 2.0, 30.0, 1.0)
     with pytest.raises(ValueError, match="unknown fault 'smoke'"):
         Faults.parse("smoke=1")
+
+
+def test_emulator_replays_a_carmen_log(tmp_path):
+    """Each rotation shows the next laser record; beams outside its field of view are empty."""
+    from hardware.sources import CarmenSource
+
+    ranges = " ".join(f"{1.0 + 0.01 * k:.2f}" for k in range(181))  # 181 beams over 180°
+    log = tmp_path / "tiny.log"
+    log.write_text("".join(f"FLASER 181 {ranges} 0 0 0 0 0 0 {t}.0 host {t}.0\n"
+                           for t in range(3)))
+    emu = VirtualRPLidar(CarmenSource(log), "a1", seed=0)
+    emu.start()
+    scans = Scans()
+    try:
+        with RPLidar(emu.path, "a1", on_scan=scans) as lidar:
+            lidar.start("standard")
+            got = scans.wait(2)
+            lidar.stop()
+    finally:
+        emu.stop()
+    angles, r, _ = got[-1]
+    front = np.abs(angles) < np.radians(85)  # inside the record's ±90°
+    # beam k at −90° + k°, range 1 + 0.01 k: the nearest beam's (a neighbour at a tie, ½°)
+    k = np.degrees(angles[front]) + 90.0
+    nearest = 1.0 + 0.01 * np.round(k)
+    assert np.all(np.abs(r[front] - nearest) < 0.0101)
+    assert np.mean(np.abs(r[front] - nearest) < 0.001) > 0.95
+    assert np.all(r[np.abs(angles) > np.radians(95)] == 0.0)  # behind: no return

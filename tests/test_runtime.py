@@ -1,7 +1,6 @@
 """The fixed-rate runtime: lockstep = GraphSlam.step, sliced back end under deadline pressure,
 capacities, sessions (save → kill → resume, corrupt files), and no memory growth per tick."""
 
-import gc
 import json
 import os
 import subprocess
@@ -9,7 +8,6 @@ import sys
 import textwrap
 import threading
 import time
-import tracemalloc
 from dataclasses import replace
 
 import numpy as np
