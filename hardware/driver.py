@@ -263,6 +263,7 @@ class RPLidar:
         out = self.stats.as_dict()
         out["rotations"] = self.rotations.rotations
         out["short_rotations"] = self.rotations.short
+        out["overflow_samples"] = self.rotations.overflows
         if self.motor_note:
             out["motor_note"] = self.motor_note
         return out
