@@ -28,7 +28,7 @@ from hardware.rotation import Rotations
 from hardware.stream import CapsuleStream, NodeStream, StreamStats, find_descriptor
 
 
-class LidarError(RuntimeError):
+class LidarError(OSError):
     """The scanner did not answer as the protocol says (names the request and what came)."""
 
 

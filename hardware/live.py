@@ -42,7 +42,6 @@ def run_live(port: str, model: str = "a1", mode: str = "express", out_dir="swarm
     else:
         runtime = SlamRuntime(slam_config_for(model), RuntimeConfig(rate_hz=rate_hz))
     m = get_model(model)
-    echo(f"warming up the compiled kernels: {runtime.warm_up():.1f} s")
     inbox = runtime.inbox
 
     def on_scan(angles, ranges, stamp):
@@ -55,6 +54,7 @@ def run_live(port: str, model: str = "a1", mode: str = "express", out_dir="swarm
     echo(f"{port}: model 0x{info.model:02X} firmware {info.firmware_major}.{info.firmware_minor:02d} "
          f"hardware {info.hardware} serial {info.serial_hex}; health "
          f"{['ok', 'warning', 'error'][min(health[0], 2)]} (code {health[1]})")
+    echo(f"warming up the compiled kernels: {runtime.warm_up():.1f} s")
     stop = stop or threading.Event()
     started = time.monotonic()
     last_print = [started, 0]

@@ -233,7 +233,7 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (FileNotFoundError, ValueError) as e:
+    except (OSError, ValueError) as e:  # files, ports (pyserial's errors are OSErrors), input
         print(f"swarmslam: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -59,3 +59,9 @@ def test_emulate_command_prints_the_port_and_serves_it(tmp_path):
     finally:
         proc.terminate()
         proc.wait(timeout=10)
+
+
+def test_a_missing_port_is_a_clear_error(tmp_path, capsys):
+    missing = tmp_path / "no-such-port"
+    assert main(["lidar", "--port", str(missing), "--seconds", "1"]) == 2
+    assert f"could not open port {missing}" in capsys.readouterr().err
