@@ -264,6 +264,9 @@ class RPLidar:
         out["rotations"] = self.rotations.rotations
         out["short_rotations"] = self.rotations.short
         out["overflow_samples"] = self.rotations.overflows
+        if self.rotations.callback_errors:
+            out["on_scan_errors"] = self.rotations.callback_errors
+            out["last_on_scan_error"] = self.rotations.last_error
         if self.motor_note:
             out["motor_note"] = self.motor_note
         return out

@@ -33,6 +33,8 @@ class Rotations:
         self.rotations = 0
         self.short = 0  # rotations dropped for having fewer than min_samples
         self.overflows = 0  # samples beyond the capacity, dropped
+        self.callback_errors = 0  # on_rotation raised: counted, the stream goes on
+        self.last_error = ""
 
     def add(self, start: bool, quality: int, angle_q6: int, distance_q2: int) -> None:
         if start:
@@ -64,4 +66,8 @@ class Rotations:
         self.rotations += 1
         if self.on_rotation is not None:
             n = self.count
-            self.on_rotation(self.angles[:n], self.ranges[:n], self.clock())
+            try:
+                self.on_rotation(self.angles[:n], self.ranges[:n], self.clock())
+            except Exception as exc:  # the consumer's fault must not stop the reader thread
+                self.callback_errors += 1
+                self.last_error = f"{type(exc).__name__}: {exc}"

@@ -207,3 +207,20 @@ def test_emulator_replays_a_carmen_log(tmp_path):
     assert np.all(np.abs(r[front] - nearest) < 0.0101)
     assert np.mean(np.abs(r[front] - nearest) < 0.001) > 0.95
     assert np.all(r[np.abs(angles) > np.radians(95)] == 0.0)  # behind: no return
+
+
+def test_a_failing_consumer_does_not_stop_the_stream(emulator_factory):
+    emu = emulator_factory("a1")
+    calls = []
+
+    def broken(angles, ranges, stamp):
+        calls.append(stamp)
+        raise ValueError("consumer bug")
+
+    with RPLidar(emu.path, "a1", on_scan=broken) as lidar:
+        lidar.start("express")
+        assert eventually(lambda: len(calls) >= 3, timeout=10)  # rotations keep coming
+        lidar.stop()
+        report = lidar.report()
+    assert report["on_scan_errors"] >= 3
+    assert report["last_on_scan_error"] == "ValueError: consumer bug"
