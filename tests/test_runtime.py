@@ -299,14 +299,14 @@ def test_no_traced_memory_growth_over_ten_thousand_ticks_after_warm_up():
     (matching, node insertion, loop search, optimisation, capacity reached): traced memory at
     tick boundaries must not grow with the ticks.
 
-    Any object kept per tick would add ≥ 24 B each tick (≥ 240 kB here); what remains
-    measured is a few kB of 50–60 B blocks allocated inside numba's and numpy's C calls, at a
-    rate that falls over the process's life, which the bound below tolerates."""
+    Any object kept per tick would add ≥ 24 B each tick (≥ 240 kB here); the bound is a tenth
+    of that. What is measured (2–10 kB over five runs) are 50–60 B blocks allocated inside
+    numba's and numpy's C calls, at a rate that falls over the process's life."""
     result = probe(SOAK_PROBE)
     warm, end = result["warm"], result["end"]
     assert warm["nodes"] == 500 and warm["loops_accepted"] > 20
     assert "capacity reached" in end["status"] and end["scans"] == 12_000
-    assert result["growth"] <= 10_000, f"traced memory grew {result['growth']} B over 10⁴ ticks"
+    assert result["growth"] <= 24_000, f"traced memory grew {result['growth']} B over 10⁴ ticks"
 
 
 GROWTH_PROBE = textwrap.dedent(
@@ -357,8 +357,9 @@ def test_graph_growth_allocates_nothing_that_stays():
     result = probe(GROWTH_PROBE)
     assert result["added"] >= 150 and result["loops"] > 20
     # Before the capacity buffers, the sparsity pattern alone grew by ~400 B per node, and the
-    # qdldl solver's scipy round trips kept more; now it is the C-call residue above.
-    assert result["growth"] < 100 * result["added"], result
+    # qdldl solver's scipy round trips kept more; now it is the C-call residue above (37–57 B
+    # per node over four runs).
+    assert result["growth"] < 150 * result["added"], result
 
 
 def test_run_ticks_at_its_rate_and_stops_on_request():
