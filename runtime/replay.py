@@ -31,6 +31,16 @@ def slam_config(optimizer: str = "abc", **overrides) -> SlamConfig:
     return SlamConfig(matcher=MatcherConfig.for_optimizer(optimizer), **overrides)
 
 
+def robot_frame_scan(record, scan: PointScan) -> PointScan:
+    """A laser record's valid points, moved from the laser's frame into the robot's."""
+    scan.set_ranges(record.ranges, record.angles, 0.0, record.max_range)
+    if np.any(record.laser_offset):
+        n = scan.count
+        pts = compose(record.laser_offset, np.c_[scan.buffer[:n], np.zeros(n)])
+        scan.buffer[:n] = pts[:, :2]
+    return scan
+
+
 def replay(log_path, relations_path=None, optimizer="abc", odometry=True, out_dir=None,
            limit=None, seed=0, config: SlamConfig | None = None, label="replay",
            echo=print, runtime_config: RuntimeConfig | None = None) -> dict:
@@ -49,11 +59,7 @@ def replay(log_path, relations_path=None, optimizer="abc", odometry=True, out_di
     progress = Progress(len(lasers), label)
     start = time.perf_counter()
     for k, record in enumerate(lasers):
-        scan.set_ranges(record.ranges, record.angles, 0.0, record.max_range)
-        if np.any(record.laser_offset):  # points into the robot frame
-            n = scan.count
-            pts = compose(record.laser_offset, np.c_[scan.buffer[:n], np.zeros(n)])
-            scan.buffer[:n] = pts[:, :2]
+        robot_frame_scan(record, scan)
         t0 = time.perf_counter()
         runtime.process(scan, record.odometry if odometry else None, record.timestamp)
         latencies[k] = time.perf_counter() - t0

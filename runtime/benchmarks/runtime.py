@@ -29,10 +29,9 @@ from runtime.carmen import read_carmen
 from runtime.datasets import require
 from runtime.fixed_rate import RuntimeConfig, SlamRuntime
 from runtime.metrics import kummerle
-from runtime.pose import compose
 from runtime.progress import Progress
 from runtime.relations import read_relations
-from runtime.replay import replay, slam_config
+from runtime.replay import replay, robot_frame_scan, slam_config
 from runtime.scan import PointScan
 from runtime.synthetic import LoopDrive
 from runtime.writers import write_json_atomic
@@ -56,10 +55,7 @@ def robot_frame_scans(log):
     out = []
     scan = PointScan(max(len(r.ranges) for r in log.lasers))
     for r in log.lasers:
-        scan.set_ranges(r.ranges, r.angles, 0.0, r.max_range)
-        pts = scan.buffer[: scan.count].copy()
-        if np.any(r.laser_offset):
-            pts = compose(r.laser_offset, np.c_[pts, np.zeros(len(pts))])[:, :2].copy()
+        pts = robot_frame_scan(r, scan).points.copy()
         out.append((pts, len(pts), np.asarray(r.odometry, dtype=np.float64), r.timestamp))
     return out
 
