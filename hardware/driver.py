@@ -89,16 +89,8 @@ class RPLidar:
                 raise LidarError(f"{name}: the scanner is scanning; call stop() first")
             self.serial.reset_input_buffer()
             self.send(command, payload)
-            buffer = bytearray()
             deadline = time.monotonic() + self.timeout
-            found = None
-            while found is None:
-                if time.monotonic() > deadline:
-                    raise LidarError(f"{name}: no response descriptor within {self.timeout} s "
-                                     f"(got {len(buffer)} bytes: {bytes(buffer[:16]).hex(' ')})")
-                buffer += self.serial.read(max(1, self.serial.in_waiting))
-                found = find_descriptor(buffer, self.stats)
-            descriptor = found[0]
+            descriptor, buffer = self._await_descriptor(name, deadline)
             if answer is not None and descriptor.answer_type != answer:
                 raise LidarError(f"{name}: answer type 0x{descriptor.answer_type:02X}, "
                                  f"expected 0x{answer:02X}")
@@ -110,6 +102,21 @@ class RPLidar:
                                      f"{descriptor.length} bytes")
                 buffer += self.serial.read(descriptor.length - len(buffer))
             return bytes(buffer[: descriptor.length])
+
+    def _await_descriptor(self, name: str, deadline: float):
+        """Read until a response descriptor arrives (bytes before it dropped and counted):
+        ``(descriptor, the bytes after it)``, or :class:`LidarError` at ``deadline``."""
+        buffer, received = bytearray(), 0
+        while True:
+            found = find_descriptor(buffer, self.stats)
+            if found is not None:
+                return found[0], buffer
+            if time.monotonic() > deadline:
+                raise LidarError(f"{name}: no response descriptor within {self.timeout} s "
+                                 f"({received} other bytes received)")
+            chunk = self.serial.read(max(1, self.serial.in_waiting))
+            received += len(chunk)
+            buffer += chunk
 
     def get_info(self) -> p.DeviceInfo:
         return p.decode_info(self.request(p.GET_INFO, answer=p.ANS_INFO, length=p.INFO_LEN))
@@ -198,15 +205,7 @@ class RPLidar:
                 self.send(p.SCAN)
             else:
                 self.send(p.EXPRESS_SCAN, p.express_payload(0))
-            buffer = bytearray()
-            deadline = time.monotonic() + self.timeout
-            found = None
-            while found is None:
-                if time.monotonic() > deadline:
-                    raise LidarError(f"{mode} scan: no descriptor within {self.timeout} s")
-                buffer += self.serial.read(max(1, self.serial.in_waiting))
-                found = find_descriptor(buffer, self.stats)
-            d = found[0]
+            d, buffer = self._await_descriptor(f"{mode} scan", time.monotonic() + self.timeout)
         self.rotations.reset()
         if d.answer_type == p.ANS_NODE:
             parser = NodeStream(self.rotations, self.stats)
