@@ -18,10 +18,7 @@ from pathlib import Path
 from hardware.driver import RPLidar
 from hardware.models import model as get_model
 from runtime.fixed_rate import RuntimeConfig, SlamRuntime
-from runtime.g2o import write_g2o
-from runtime.map_io import write_map
 from runtime.slam import SlamConfig
-from runtime.tum import write_tum
 from runtime.writers import write_json_atomic
 
 
@@ -86,12 +83,9 @@ def run_live(port: str, model: str = "a1", mode: str = "express", out_dir="swarm
 
 def save_outputs(runtime: SlamRuntime, out: Path, scanner: dict, echo=print) -> dict:
     runtime.drain()
-    stamps, poses = runtime.trajectory()
     summary = {"runtime": runtime.report(), "scanner": scanner}
     if runtime.slam.graph.n_nodes:
-        write_map(out / "map", runtime.global_map())
-        write_tum(out / "trajectory.tum", stamps, poses)
-        write_g2o(out / "graph.g2o", runtime.slam.graph)
+        runtime.write_results(out)
         runtime.save(out / "session.npz")
     write_json_atomic(out / "summary.json", summary)
     echo(f"wrote {out}/: map.pgm map.yaml map.png trajectory.tum graph.g2o session.npz summary.json")

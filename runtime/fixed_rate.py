@@ -26,13 +26,17 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
 from runtime.back_end import BackEnd
+from runtime.g2o import write_g2o
 from runtime.inbox import ScanInbox
+from runtime.map_io import write_map
 from runtime.scan import PointScan
 from runtime.slam import GraphSlam, SlamConfig, StepResult
+from runtime.tum import write_tum
 
 SCHEDULES = ("budgeted", "lockstep")
 
@@ -274,6 +278,14 @@ class SlamRuntime:
 
     def trajectory(self):
         return self.slam.trajectory()
+
+    def write_results(self, out_dir) -> None:
+        """The map (PGM + YAML for ROS map_server, PNG), the trajectory (TUM) and the pose
+        graph (g2o) into ``out_dir``, each written atomically."""
+        out = Path(out_dir)
+        write_map(out / "map", self.global_map())
+        write_tum(out / "trajectory.tum", *self.trajectory())
+        write_g2o(out / "graph.g2o", self.slam.graph)
 
     def report(self) -> dict:
         """Statistics a person or a benchmark wants: rate, latency, misses, SLAM, capacity."""

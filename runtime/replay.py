@@ -13,17 +13,14 @@ from pathlib import Path
 import numpy as np
 
 from runtime.carmen import read_carmen
-from runtime.g2o import write_g2o
-from runtime.map_io import write_map
+from runtime.fixed_rate import RuntimeConfig, SlamRuntime
 from runtime.metrics import kummerle
 from runtime.pose import compose
 from runtime.progress import Progress
 from runtime.relations import read_relations
 from runtime.scan import PointScan
 from runtime.scan_matcher import MatcherConfig
-from runtime.fixed_rate import RuntimeConfig, SlamRuntime
 from runtime.slam import SlamConfig
-from runtime.tum import write_tum
 from runtime.writers import write_json_atomic
 
 
@@ -91,9 +88,6 @@ def replay(log_path, relations_path=None, optimizer="abc", odometry=True, out_di
     if relations is not None:
         metrics.update(kummerle(stamps, poses, relations))
     if out_dir is not None:
-        out = Path(out_dir)
-        write_map(out / "map", slam.global_map())
-        write_tum(out / "trajectory.tum", stamps, poses)
-        write_g2o(out / "graph.g2o", slam.graph)
-        write_json_atomic(out / "metrics.json", metrics)
+        runtime.write_results(out_dir)
+        write_json_atomic(Path(out_dir) / "metrics.json", metrics)
     return metrics
