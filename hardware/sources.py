@@ -61,9 +61,8 @@ class CarmenSource:
         ranges = np.asarray(record.ranges, dtype=np.float64)
         want = robot_angles(angles_deg)
         want = (want + math.pi) % (2 * math.pi) - math.pi
-        step = abs(beams[1] - beams[0]) if len(beams) > 1 else 1.0
-        k = np.clip(np.round((want - beams[0]) / (beams[1] - beams[0])).astype(int), 0, len(beams) - 1) \
-            if len(beams) > 1 else np.zeros(len(want), int)
+        k = np.abs(want[:, None] - beams[None, :]).argmin(axis=1)  # the nearest beam
+        spacing = np.max(np.abs(np.diff(beams))) if len(beams) > 1 else math.pi
         r = ranges[k]
-        ok = (np.abs(beams[k] - want) <= step) & (r > 0) & (r < record.max_range)
+        ok = (np.abs(beams[k] - want) <= spacing) & (r > 0) & (r < record.max_range)
         return np.where(ok, r * 1000.0, 0.0)
