@@ -89,6 +89,11 @@ class LoopClosureConfig:
     min_inliers: float = 0.8
     inlier_distance: float = 0.2  # m
     position_floor: float = 0.1  # m: minimum std of the relative position in the gate
+    # The candidate's side of the match is a local submap: its own scan and the scans of up to
+    # submap_nodes nodes either side of it (placed by the graph), as Cartographer matches scans
+    # against submaps. A single 180° scan seldom overlaps a pass made in the other direction;
+    # the submap around the candidate does. 0: the candidate's scan alone.
+    submap_nodes: int = 2
 
 
 class LoopCloser:

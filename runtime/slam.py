@@ -55,6 +55,14 @@ class SlamConfig:
     # retried over the whole search box.
     min_track_inliers: float = 0.5
     weak_information_factor: float = 9.0
+    # With odometry, a match that corrects the odometry's prediction by more than
+    # odometry_gate[0] + odometry_gate_share[0]·(odometry's step) in translation, or
+    # odometry_gate[1] + odometry_gate_share[1]·|its rotation| in heading, has lost track too:
+    # between two scans odometry errs by far less, while a keyframe match that has drifted
+    # with shrinking overlap pulls a few degrees per scan towards the keyframe (Intel, turning
+    # on the spot: 49° lost over 16 scans). None: no gate.
+    odometry_gate: tuple[float, float] | None = (0.1, math.radians(3.0))
+    odometry_gate_share: tuple[float, float] = (0.2, 0.35)
     max_nodes: int = 5000
     max_edges: int = 20000
     max_points: int = 1440  # per stored scan
@@ -97,6 +105,7 @@ class GraphSlam:
         self._node_scan = PointScan(c.max_points)
         self._saved_poses = np.zeros((c.max_nodes, 3))
         self._submap = PointScan(c.max_points * max(c.submap_nodes, 1))
+        self._loop_submap = PointScan(c.max_points * (2 * c.loop_closure.submap_nodes + 1))
         # Per-scan trajectory: the node a scan was matched to, and its pose in that node's frame.
         self.scan_node = np.zeros(c.max_scans, np.int64)
         self.scan_rel = np.zeros((c.max_scans, 3))
@@ -128,10 +137,12 @@ class GraphSlam:
         if self.keyframe < 0:
             self._start(scan, odometry, stamp)
             return StepResult(self.graph.poses[0].copy(), True, False, 0.0)
-        guess = compose(self.rel, self._predicted_motion(odometry))
+        step = self._predicted_motion(odometry)
+        guess = compose(self.rel, step)
         match = self.matcher.align_scans(scan, self.keyframe_reference, guess)  # Alg. 5
         pose = match.pose
-        if self._inliers(scan, pose) < self.config.min_track_inliers:
+        if (self._inliers(scan, pose) < self.config.min_track_inliers
+                or (odometry is not None and self._contradicts_odometry(pose, guess, step))):
             pose = self._recover(scan, pose, guess, odometry is not None)
         self.motion = between(pose, self.rel)
         self.rel = pose
@@ -195,8 +206,11 @@ class GraphSlam:
         too few of its points land on the candidate's surfaces."""
         loops, scan = self.loops, self._loop_scan
         loops.attempts += 1
-        self._load_scan(candidate, scan)
-        reference = self.loop_matcher.build_reference(scan, self.loop_reference)
+        k = loops.config.submap_nodes
+        last = min(candidate + k, node - loops.config.exclude_recent)  # never the node's neighbours
+        nodes = range(max(candidate - k, 0), max(last, candidate) + 1)
+        submap = self._place_scans(nodes, candidate, self._loop_submap)
+        reference = self.loop_matcher.build_reference(submap, self.loop_reference)
         self._load_scan(node, scan)
         match = self.loop_matcher.align_scans(scan, reference, relative_guess(self.graph, candidate, node))
         if self.loop_matcher.inlier_fraction(scan, reference, match.pose,
@@ -273,19 +287,34 @@ class GraphSlam:
         k = self.config.submap_nodes
         if k <= 1 or node == 0:
             return scan
-        g, out, n = self.graph, self._submap, 0
-        for other in range(max(node - k + 1, 0), node):
+        return self._place_scans(range(max(node - k + 1, 0), node + 1), node, self._submap)
+
+    def _place_scans(self, nodes, frame: int, out: PointScan) -> PointScan:
+        """The stored scans of ``nodes``, one after another, in node ``frame``'s frame as the
+        graph places them (each scan's points stay together, so surfaces join within it)."""
+        g, n = self.graph, 0
+        for other in nodes:
             m = self.node_counts[other]
-            rel = between(g.poses[other], g.poses[node])
-            pts = compose(rel, np.c_[self.node_points[other, :m], np.zeros(m)])[:, :2]
+            pts = self.node_points[other, :m]
+            if other != frame:
+                rel = between(g.poses[other], g.poses[frame])
+                pts = compose(rel, np.c_[pts, np.zeros(m)])[:, :2]
             out.buffer[n : n + m] = pts
             n += m
-        out.buffer[n : n + scan.count] = scan.buffer[: scan.count]
-        out.count = n + scan.count
+        out.count = n
         return out
 
     def _inliers(self, scan, pose) -> float:
         return self.matcher.inlier_fraction(scan, self.keyframe_reference, pose, 0.2)
+
+    def _contradicts_odometry(self, pose, guess, step) -> bool:
+        gate = self.config.odometry_gate
+        if gate is None:
+            return False
+        share = self.config.odometry_gate_share
+        correction = between(pose, guess)
+        return bool(math.hypot(correction[0], correction[1]) > gate[0] + share[0] * math.hypot(step[0], step[1])
+                    or abs(correction[2]) > gate[1] + share[1] * abs(step[2]))
 
     def _recover(self, scan, pose, guess, have_odometry: bool):
         """The guided match lost track. With odometry, its prediction stands in (the next
