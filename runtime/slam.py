@@ -61,7 +61,7 @@ class SlamConfig:
     # between two scans odometry errs by far less, while a keyframe match that has drifted
     # with shrinking overlap pulls a few degrees per scan towards the keyframe (Intel, turning
     # on the spot: 49° lost over 16 scans). None: no gate.
-    odometry_gate: tuple[float, float] | None = (0.1, math.radians(3.0))
+    odometry_gate: tuple[float, float] | None = (0.15, math.radians(5.0))
     odometry_gate_share: tuple[float, float] = (0.2, 0.35)
     max_nodes: int = 5000
     max_edges: int = 20000

@@ -174,3 +174,56 @@ def test_submap_reference_tracks_and_closes_the_loop():
     assert err.max() < 0.15 and err.mean() < 0.05, (err.max(), err.mean())
     # The reference really holds several scans: more points than the newest scan alone.
     assert slam._submap.count > slam.node_counts[slam.keyframe]
+
+
+def _glitch_run(config, glitch_at=20, glitch_turn=np.radians(12.0)):
+    """Drive part of the demo loop with exact odometry; one scan is taken as if the robot had
+    turned ``glitch_turn`` more than it did (what a match that lost track reports)."""
+    path = loop_path(80)[:30]
+    world = room_world(0, size=(12.0, 9.0), boxes=14, walls=0, keep_clear=path)
+    slam = GraphSlam(config, seed=0)
+    scan = PointScan(len(ANGLES))
+    headings = []
+    for k in range(len(path)):
+        seen = compose(path[k], [0.0, 0.0, glitch_turn]) if k == glitch_at else path[k]
+        scan.set_ranges(scan_at(world, seen, ANGLES, 12.0, 0.01), ANGLES, 0.05, 12.0)
+        headings.append(slam.step(scan, path[k], float(k)).pose[2])
+    truth = between(path, path[0])
+    return slam, np.degrees(np.abs(np.angle(np.exp(1j * (np.array(headings) - truth[:, 2])))))
+
+
+def test_match_contradicting_odometry_is_not_trusted():
+    # Between two scans odometry errs by far less than 12°: the gate keeps odometry's
+    # prediction for the glitch scan, and tracking goes on from there. (The glitch scan became
+    # a node here, so the next scans match against it until the next node: also gated.)
+    slam, heading_error = _glitch_run(SlamConfig())
+    assert 1 <= slam.lost_matches <= 3
+    assert heading_error[20] < 1.5 and heading_error.max() < 1.5, heading_error
+    # Without the gate the same scan is believed: the pose turns with it.
+    ungated, heading_error = _glitch_run(SlamConfig(odometry_gate=None))
+    assert ungated.lost_matches == 0
+    assert heading_error[20] > 8.0, heading_error[20]
+
+
+def test_loop_reference_is_a_submap_around_the_candidate():
+    slam, _, _ = run()
+    g, k = slam.graph, slam.loops.config.submap_nodes
+    node, candidate = g.n_nodes - 1, 5
+    assert k >= 1
+    slam.align_loop(candidate, node)  # builds the submap, whatever the match
+    submap = slam._loop_submap
+    counts = slam.node_counts[candidate - k : candidate + k + 1]
+    assert submap.count == counts.sum()
+    # Each neighbour's scan sits where the graph puts it: back in the world, it lands on its
+    # own node's points.
+    start = 0
+    for other in range(candidate - k, candidate + k + 1):
+        m = slam.node_counts[other]
+        placed = compose(g.poses[candidate], np.c_[submap.buffer[start : start + m], np.zeros(m)])
+        own = compose(g.poses[other], np.c_[slam.node_points[other, :m], np.zeros(m)])
+        assert np.allclose(placed[:, :2], own[:, :2], atol=1e-9)
+        start += m
+    # Near the new node the submap stops short of its neighbours (they are not a loop).
+    recent = node - slam.loops.config.exclude_recent
+    slam.align_loop(recent, node)
+    assert slam._loop_submap.count == slam.node_counts[recent - k : recent + 1].sum()
