@@ -28,7 +28,7 @@ from runtime.loop_closure import (
     relative_guess,
 )
 from runtime.occupancy_grid import OccupancyGrid
-from runtime.pose import between, compose
+from runtime.pose import between, compose, place_points_nb
 from runtime.pose_graph import LOOP, ODOMETRY, PoseGraph, information_from_sigma
 from runtime.scan import PointScan
 from runtime.scan_matcher import MatcherConfig, ScanMatcher
@@ -292,15 +292,10 @@ class GraphSlam:
     def _place_scans(self, nodes, frame: int, out: PointScan) -> PointScan:
         """The stored scans of ``nodes``, one after another, in node ``frame``'s frame as the
         graph places them (each scan's points stay together, so surfaces join within it)."""
-        g, n = self.graph, 0
+        n = 0
         for other in nodes:
-            m = self.node_counts[other]
-            pts = self.node_points[other, :m]
-            if other != frame:
-                rel = between(g.poses[other], g.poses[frame])
-                pts = compose(rel, np.c_[pts, np.zeros(m)])[:, :2]
-            out.buffer[n : n + m] = pts
-            n += m
+            n = place_points_nb(self.graph.poses, other, frame, self.node_points[other],
+                                self.node_counts[other], out.buffer, n)
         out.count = n
         return out
 
