@@ -7,9 +7,10 @@ the consistency test that replaces the literal "error did not grow" rule.
    rebuilding as nodes move under optimisation, and allocates nothing.
 2. Outliers: keep candidates inside the 95% ellipse (χ²₂ = 5.991) of the relative position
    covariance, propagated along the chain of odometry edges.
-3. For the closest remaining candidates: align the new node's scan with the candidate's
-   (Alg. 5, the search box centred on the graph's current estimate), and accept the match only
-   if enough of its points lie on the candidate's surfaces (the inlier fraction; λ itself is
+3. For the closest remaining candidates: align the new node's scan with a local submap around
+   the candidate (its scan and its neighbours', placed by the graph; Alg. 5, the search box
+   centred on the graph's current estimate), and accept the match only if enough of its points
+   lie on the submap's surfaces (the inlier fraction; λ itself is
    no test here, since scans metres apart always score worse than the keyframe pairs the
    rejection threshold was learnt on). Add the edge, re-optimise, and keep it only if its own
    error ``eᵀΩe`` stays under the χ²₃ gate (7.81) and the total error rose by no more than a

@@ -202,8 +202,8 @@ class GraphSlam:
         return self.loops.candidates(self.graph, self.node_cov, node)
 
     def align_loop(self, candidate: int, node: int):
-        """Alg. 7, step 3a: ``node``'s pose in ``candidate``'s frame by Alg. 5, or None when
-        too few of its points land on the candidate's surfaces."""
+        """Alg. 7, step 3a: ``node``'s pose in ``candidate``'s frame by Alg. 5 against the
+        submap around the candidate, or None when too few of its points land on its surfaces."""
         loops, scan = self.loops, self._loop_scan
         loops.attempts += 1
         k = loops.config.submap_nodes
