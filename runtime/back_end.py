@@ -108,9 +108,7 @@ class BackEnd:
             if n == 0:
                 self._finish()
             return
-        g = slam.graph
-        if g.n_edges >= g.max_edges:
-            slam.status = "capacity reached: no more loop closures"
+        if slam.edges_full():
             self._finish()
             return
         candidate = int(self.candidates[self.next_candidate])

@@ -189,8 +189,7 @@ class GraphSlam:
         """Alg. 7 for ``node``: align it with up to ``max_attempts`` gated candidates and keep
         the first closure that passes the consistency test."""
         for candidate in self.loop_candidates(node)[: self.loops.config.max_attempts]:
-            if self.graph.n_edges >= self.graph.max_edges:
-                self.status = "capacity reached: no more loop closures"
+            if self.edges_full():
                 return False
             z = self.align_loop(candidate, node)
             if z is not None and self.close_loop(candidate, node, z):
@@ -223,8 +222,7 @@ class GraphSlam:
         """Alg. 7, step 3b: add the loop edge, re-optimise (Eq. 21), and keep the edge only if
         the graph stays consistent; otherwise remove it and restore the poses."""
         g, loops = self.graph, self.loops
-        if g.n_edges >= g.max_edges:
-            self.status = "capacity reached: no more loop closures"
+        if self.edges_full():
             return False
         total_before = g.chi2()
         saved = self._saved_poses[: g.n_nodes]
@@ -244,6 +242,13 @@ class GraphSlam:
         g.poses[: g.n_nodes] = saved
         loops.rejected_consistency += 1
         return False
+
+    def edges_full(self) -> bool:
+        """True (and said in the status) once the edge capacity leaves no room for a loop."""
+        if self.graph.n_edges < self.graph.max_edges:
+            return False
+        self.status = "capacity reached: no more loop closures"
+        return True
 
     def optimize_graph(self):
         return self.optimizer.optimize()
