@@ -6,15 +6,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from runtime.synthetic import loop_path
 from runtime.map_io import read_pgm, write_map
 from runtime.metrics import kummerle
-from runtime.pose import between, compose
+from runtime.pose import between, compose, wrap_angle
+from runtime.pose_graph import LOOP
 from runtime.relations import Relations, RelationsFormatError, read_relations
 from runtime.scan import PointScan
-from runtime.pose_graph import LOOP
 from runtime.slam import GraphSlam, SlamConfig
-from runtime.synthetic import room_world, scan_at
+from runtime.synthetic import loop_path, room_world, scan_at
 
 ANGLES = np.deg2rad(np.arange(-180, 180, 1.0))
 
@@ -49,7 +48,7 @@ def test_loop_closes_and_optimised_trajectory_recovers_the_truth():
 
 
 def test_initial_pose_anchors_the_map_frame():
-    slam, truth_in_first_frame, _ = run(steps=40)
+    slam, _, _ = run(steps=40)
     start = np.array([3.0, -2.0, 1.0])
     anchored, _, _ = run(steps=40, initial_pose=start)
     assert np.allclose(anchored.graph.poses[0], start)
@@ -93,7 +92,7 @@ def test_false_loop_candidate_is_rejected_and_graph_restored():
 
 
 def test_capacity_reached_keeps_localising():
-    slam, truth, _ = run(steps=40, config=SlamConfig(max_nodes=5, max_edges=8))
+    slam, _, _ = run(steps=40, config=SlamConfig(max_nodes=5, max_edges=8))
     assert slam.graph.n_nodes == 5 and "capacity reached" in slam.status
     _, poses = slam.trajectory()
     assert len(poses) == 40 and np.all(np.isfinite(poses))
@@ -176,20 +175,20 @@ def test_submap_reference_tracks_and_closes_the_loop():
     assert slam._submap.count > slam.node_counts[slam.keyframe]
 
 
-def _glitch_run(config, glitch_at=20, glitch_turn=np.radians(12.0)):
+def _glitch_run(config, glitch_at=20, glitch_turn_deg=12.0):
     """Drive part of the demo loop with exact odometry; one scan is taken as if the robot had
-    turned ``glitch_turn`` more than it did (what a match that lost track reports)."""
+    turned ``glitch_turn_deg`` more than it did (what a match that lost track reports)."""
     path = loop_path(80)[:30]
     world = room_world(0, size=(12.0, 9.0), boxes=14, walls=0, keep_clear=path)
     slam = GraphSlam(config, seed=0)
     scan = PointScan(len(ANGLES))
     headings = []
     for k in range(len(path)):
-        seen = compose(path[k], [0.0, 0.0, glitch_turn]) if k == glitch_at else path[k]
+        seen = compose(path[k], [0.0, 0.0, np.radians(glitch_turn_deg)]) if k == glitch_at else path[k]
         scan.set_ranges(scan_at(world, seen, ANGLES, 12.0, 0.01), ANGLES, 0.05, 12.0)
         headings.append(slam.step(scan, path[k], float(k)).pose[2])
     truth = between(path, path[0])
-    return slam, np.degrees(np.abs(np.angle(np.exp(1j * (np.array(headings) - truth[:, 2])))))
+    return slam, np.degrees(np.abs(wrap_angle(np.array(headings) - truth[:, 2])))
 
 
 def test_match_contradicting_odometry_is_not_trusted():
