@@ -1,6 +1,6 @@
 """An RPLidar driver on pyserial: requests, motor, scanning, a reader thread, reconnects.
 
-    lidar = RPLidar("/dev/rplidar", "a1", on_scan=runtime.inbox.put_ranges_rotation)
+    lidar = RPLidar("/dev/rplidar", "a1", on_scan=lambda angles, ranges, stamp: print(len(ranges)))
     lidar.connect(); print(lidar.get_info(), lidar.get_health())
     lidar.start("express")           # motor on, scan started, reader thread running
     ...

@@ -10,7 +10,7 @@ commands, STOP and RESET, and streams standard nodes (SCAN), legacy express caps
 EXPRESS_SCAN) or dense capsules (S-series and C1) at the model's sample rate. The ranges come
 from a *source*: ``source.distances(angles_deg)`` gives distances in mm (0: no return) at the
 scanner's clockwise angles for the rotation under way, and ``source.next_rotation()`` moves on
-(:class:`hardware.sources.CarmenSource`, :class:`swarmslam_sim.scanner_source.WorldSource`).
+(:class:`scripts.emulator_sources.CarmenSource`, :class:`scripts.emulator_sources.WorldSource`).
 
 Faults: garbage bytes between packets, corrupted packets (a capsule's checksum, a node's flag
 bits), stalls (the stream stops for a while), and a vanishing port (the pseudo-terminal is

@@ -1,45 +1,71 @@
-"""The back end of Alg. 4 — loop-closure search (Alg. 7) and re-optimisation (Eq. 21) — cut
-into slices a fixed-rate tick can afford.
+"""The back end (global SLAM): the pose graph's loop-closure search (Alg. 7) and its
+re-optimisation (Eq. 21), written once as a state machine of slices; docs/runtime.md
+"Back-end slices".
 
 Each new node joins a queue of fixed capacity. Its search then runs as a chain of slices:
 
 * ``SELECT``: the node's gated candidates (Alg. 7, steps 1–2; microseconds);
-* ``ALIGN``: one candidate's alignment and inlier test (Alg. 5 on the loop matcher);
-* ``CLOSE``: add the edge, optimise the graph, keep or undo it (consistency test).
+* ``ALIGN``: one candidate's alignment with the submap around it and the inlier test (Alg. 5
+  on the loop matcher);
+* ``CLOSE``: add the edge, optimise the graph, keep or undo it (the consistency test).
 
-A slice runs only if its expected cost — a maximum of what that kind of slice took, fading
-by 3% per tick —
-fits in the time the tick has left; otherwise it waits for the next tick (counted as deferred).
-So the front end always runs, and the back end uses the slack. A slice that has waited
-``max_deferred_ticks`` ticks runs anyway (counted as forced): work is late, never lost. A full
-queue drops its oldest node's search (counted; the runtime's status says so).
+``work(clock, None)`` — the lockstep schedule — runs every pending slice now, so the whole of
+Alg. 7 happens in the tick that added the node. ``work(clock, budget_end)`` runs a slice only
+if its expected cost — the largest it took lately, fading by ``slice_cost_decay`` per tick —
+fits before ``budget_end``; otherwise it waits for the next tick (counted as deferred), and
+after ``max_deferred_ticks`` runs anyway (counted as forced): late, never lost. A full queue
+drops its oldest node's search (counted; the runtime's status says so).
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
+
+from runtime.config import SlamConfig
+from runtime.graph_optimizer import GaussNewton
+from runtime.loop_closure import LoopCloser, relative_guess
+from runtime.node_scans import NodeScans
+from runtime.pose_graph import LOOP, PoseGraph
+from runtime.scan import PointScan
+from runtime.scan_matcher import ScanMatcher
+from runtime.sparse_ldl import FactorCapacityError
 
 SELECT, ALIGN, CLOSE = 0, 1, 2
 SLICE_NAMES = ("select", "align", "close")
+EDGES_FULL_STATUS = "capacity reached: no more loop closures"
 
 
 class BackEnd:
-    def __init__(self, slam, queue_capacity: int = 64, max_deferred_ticks: int = 10):
-        if queue_capacity < 1:
-            raise ValueError(f"loop queue capacity must be >= 1, got {queue_capacity}")
-        self.slam = slam
-        self.queue = np.zeros(queue_capacity, np.int64)
+    def __init__(self, config: SlamConfig, graph: PoseGraph, nodes: NodeScans, information,
+                 seed: int = 0):
+        """``information()`` gives a new edge's information matrix (the front end's)."""
+        lc, rc = config.loop_closure, config.runtime
+        self.config = config
+        self.graph, self.nodes, self.information = graph, nodes, information
+        self.optimizer = GaussNewton(graph, config.optimizer)
+        self.loops = LoopCloser(lc)
+        self.matcher = ScanMatcher(replace(config.matcher, guess_window=lc.search_window),
+                                   seed=seed)
+        self.reference = self.matcher.new_reference()
+        points = config.sensor.max_points
+        self._scan = PointScan(points)
+        self._submap = PointScan(points * (2 * lc.submap_nodes + 1))
+        self._saved_poses = np.zeros((graph.max_nodes, 3))
+        self.revision = 0  # bumped whenever a kept closure moved the optimised poses
+        self.status = "ok"
+        # The queue of nodes awaiting their search, and the search under way.
+        self.queue = np.zeros(rc.loop_queue, np.int64)
         self.head = 0  # index of the oldest queued node
         self.size = 0
-        attempts = slam.loops.config.max_attempts
-        self.candidates = np.zeros(max(attempts, 1), np.int64)
+        self.candidates = np.zeros(lc.max_attempts, np.int64)
         self.n_candidates = 0
         self.next_candidate = 0
         self.node = -1  # node whose search is under way (-1: none)
         self.phase = SELECT
         self.z = np.zeros(3)  # the aligned candidate's measurement, between ALIGN and CLOSE
         self.cost = np.zeros(3)  # expected seconds per slice kind (decaying maximum)
-        self.max_deferred_ticks = max_deferred_ticks
         self.waited = 0  # ticks the next slice has been deferred in a row
         self.enqueued = 0
         self.searched = 0  # node searches finished
@@ -48,8 +74,9 @@ class BackEnd:
         self.deferred = 0  # ticks that ended with back-end work left undone for lack of time
         self.forced = 0  # slices run over budget after waiting max_deferred_ticks
 
-    # ------------------------------------------------------------------ queue
+    # ------------------------------------------------------------------ the queue
     def enqueue(self, node: int) -> None:
+        """Queue ``node``'s loop search (Alg. 7 runs when :meth:`work` gets to it)."""
         cap = self.queue.shape[0]
         if self.size == cap:  # drop the oldest search
             self.head = (self.head + 1) % cap
@@ -70,14 +97,15 @@ class BackEnd:
     def work(self, clock, budget_end: float | None) -> int:
         """Run slices while their expected cost fits before ``budget_end`` (None: all pending
         work, no clock consulted — the lockstep schedule). Returns the slices run."""
+        rc = self.config.runtime
         ran = 0
         if budget_end is not None:
-            self.cost *= 0.97  # estimates fade per tick, so one slow outlier is soon forgotten
+            self.cost *= rc.slice_cost_decay  # one slow outlier is soon forgotten
         while self.pending():
             kind = self.phase if self.node >= 0 else SELECT
             start = clock() if budget_end is not None else 0.0
             if budget_end is not None and start + self.cost[kind] > budget_end:
-                if self.waited < self.max_deferred_ticks:
+                if self.waited < rc.max_deferred_ticks:
                     self.waited += 1
                     self.deferred += 1
                     break
@@ -88,39 +116,37 @@ class BackEnd:
             ran += 1
             if budget_end is not None:
                 took = clock() - start
-                self.cost[kind] = max(took, 0.95 * self.cost[kind])
+                self.cost[kind] = max(took, rc.slice_cost_memory * self.cost[kind])
         return ran
 
     def _run_slice(self, kind: int) -> None:
-        slam = self.slam
         if kind == SELECT:
             cap = self.queue.shape[0]
             self.node = int(self.queue[self.head])
             self.head = (self.head + 1) % cap
             self.size -= 1
-            found = slam.loop_candidates(self.node)
+            found = self.loop_candidates(self.node)
             n = min(len(found), self.candidates.shape[0])
-            for k in range(n):
-                self.candidates[k] = found[k]
+            self.candidates[:n] = found[:n]
             self.n_candidates = n
             self.next_candidate = 0
             self.phase = ALIGN
             if n == 0:
                 self._finish()
             return
-        if slam.edges_full():
+        if self.edges_full():
             self._finish()
             return
         candidate = int(self.candidates[self.next_candidate])
         if kind == ALIGN:
-            z = slam.align_loop(candidate, self.node)
+            z = self.align_loop(candidate, self.node)
             if z is None:
                 self._next_candidate()
             else:
                 self.z[:] = z
                 self.phase = CLOSE
             return
-        if slam.close_loop(candidate, self.node, self.z):
+        if self.close_loop(candidate, self.node, self.z):
             self._finish()
         else:
             self._next_candidate()
@@ -136,31 +162,101 @@ class BackEnd:
         self.phase = SELECT
         self.searched += 1
 
-    # ------------------------------------------------------------------ sessions
+    # ------------------------------------------------------------------ Alg. 7's steps
+    def loop_candidates(self, node: int) -> list[int]:
+        """Steps 1–2: nearby nodes inside the 95% ellipse, closest first."""
+        return self.loops.candidates(self.graph, self.nodes.cov, node)
+
+    def align_loop(self, candidate: int, node: int):
+        """Step 3a: ``node``'s pose in ``candidate``'s frame by Alg. 5 against the submap
+        around the candidate, or None when too few of its points land on its surfaces."""
+        loops = self.loops
+        c = loops.config
+        loops.attempts += 1
+        last = min(candidate + c.submap_nodes, node - c.exclude_recent)  # never node's neighbours
+        members = range(max(candidate - c.submap_nodes, 0), max(last, candidate) + 1)
+        submap = self.nodes.place(self.graph.poses, members, candidate, self._submap)
+        reference = self.matcher.build_reference(submap, self.reference)
+        scan = self.nodes.load(node, self._scan)
+        match = self.matcher.align_scans(scan, reference,
+                                         relative_guess(self.graph, candidate, node))
+        if self.matcher.inlier_fraction(scan, reference, match.pose,
+                                        c.inlier_distance) < c.min_inliers:
+            loops.rejected_match += 1
+            return None
+        return match.pose
+
+    def close_loop(self, candidate: int, node: int, z) -> bool:
+        """Step 3b: add the loop edge, re-optimise (Eq. 21), and keep the edge only if the
+        graph stays consistent; otherwise remove it and restore the poses."""
+        g, loops = self.graph, self.loops
+        if self.edges_full():
+            return False
+        total_before = g.chi2()
+        saved = self._saved_poses[: g.n_nodes]
+        saved[:] = g.poses[: g.n_nodes]
+        edge = g.add_edge(candidate, node, z, self.information(), LOOP)
+        try:
+            self.optimizer.optimize()
+        except FactorCapacityError as exc:  # the graph as it was; localising goes on
+            g.remove_last_edge()
+            g.poses[: g.n_nodes] = saved
+            self.status = f"capacity reached: {exc}"
+            return False
+        if loops.consistent(g, edge, total_before):
+            loops.accepted += 1
+            self.revision += 1
+            return True
+        g.remove_last_edge()
+        g.poses[: g.n_nodes] = saved
+        loops.rejected_consistency += 1
+        return False
+
+    def edges_full(self) -> bool:
+        """True (and said in the status) once the edge capacity leaves no room for a loop."""
+        if self.graph.n_edges < self.graph.max_edges:
+            return False
+        self.status = EDGES_FULL_STATUS
+        return True
+
+    # ------------------------------------------------------------------ state
     def state(self) -> dict:
         return {
+            "matcher": self.matcher.state(),
+            "loops": [self.loops.attempts, self.loops.accepted, self.loops.rejected_match,
+                      self.loops.rejected_consistency],
             "queue": np.array(self.queued(), np.int64),
             "candidates": self.candidates[: self.n_candidates].copy(),
-            "z": self.z.copy(),
-            "cost": self.cost.copy(),
-            "slices": self.slices.copy(),
-            "scalars": np.array([self.node, self.phase, self.next_candidate, self.waited,
-                                 self.enqueued, self.searched, self.dropped, self.deferred,
-                                 self.forced], np.int64),
+            "z": self.z.copy(), "cost": self.cost.copy(), "slices": self.slices.copy(),
+            "node": self.node, "phase": self.phase, "next_candidate": self.next_candidate,
+            "waited": self.waited, "enqueued": self.enqueued, "searched": self.searched,
+            "dropped": self.dropped, "deferred": self.deferred, "forced": self.forced,
+            "revision": self.revision, "status": self.status,
         }
 
     def restore(self, state: dict) -> None:
-        queue = state["queue"]
+        queue, cand = state["queue"], state["candidates"]
         if len(queue) > self.queue.shape[0]:
             raise ValueError(f"{len(queue)} queued loop searches exceed the queue capacity "
                              f"{self.queue.shape[0]}")
+        if len(cand) > self.candidates.shape[0]:
+            raise ValueError(f"{len(cand)} loop candidates exceed max_attempts "
+                             f"{self.candidates.shape[0]}")
+        n = self.graph.n_nodes
+        node = int(state["node"])
+        if any(not 0 <= int(v) < n for v in (*queue, *cand)) or not -1 <= node < n:
+            raise ValueError("the loop search refers to nodes that do not exist")
+        self.matcher.restore(state["matcher"])
+        (self.loops.attempts, self.loops.accepted, self.loops.rejected_match,
+         self.loops.rejected_consistency) = (int(v) for v in state["loops"])
         self.head, self.size = 0, len(queue)
         self.queue[: self.size] = queue
-        cand = state["candidates"]
         self.n_candidates = len(cand)
         self.candidates[: self.n_candidates] = cand
-        self.z[:] = state["z"]
-        self.cost[:] = state["cost"]
-        self.slices[:] = state["slices"]
-        (self.node, self.phase, self.next_candidate, self.waited, self.enqueued, self.searched,
-         self.dropped, self.deferred, self.forced) = (int(v) for v in state["scalars"])
+        self.z[:], self.cost[:], self.slices[:] = state["z"], state["cost"], state["slices"]
+        self.node = node
+        (self.phase, self.next_candidate, self.waited, self.enqueued, self.searched,
+         self.dropped, self.deferred, self.forced, self.revision) = (
+            int(state[k]) for k in ("phase", "next_candidate", "waited", "enqueued", "searched",
+                                    "dropped", "deferred", "forced", "revision"))
+        self.status = str(state["status"])

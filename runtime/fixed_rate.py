@@ -1,8 +1,11 @@
-"""The embedded-style SLAM runtime: Alg. 4 at a fixed rate, every tick within its budget.
+"""The embedded-style SLAM runtime: Alg. 4 at a fixed rate, every tick within its budget
+(docs/runtime.md).
 
-    runtime = SlamRuntime(SlamConfig(), RuntimeConfig(rate_hz=10))
-    driver.on_scan = runtime.inbox.put_ranges      # any producer: driver thread, simulator, log
-    runtime.run(stop_event)                        # or call runtime.tick() from your own loop
+    runtime = SlamRuntime(preset("rplidar-a1"))
+    runtime.warm_up()                      # every kernel compiled before the first tick
+    driver.on_scan = lambda angles, ranges, stamp: runtime.inbox.put_ranges(
+        angles=angles, ranges=ranges, stamp=stamp)   # keyword-only: never swapped
+    runtime.run(stop_event)                # or call runtime.tick() from your own loop
 
 Each tick takes the newest complete scan (older ones were dropped and counted by the inbox),
 runs the front end — Alg. 5's alignment and Alg. 6's node insertion — always, with the swarm's
@@ -10,68 +13,34 @@ evaluation budget scaled to the time the tick has, then gives the back end — A
 search and Eq. 21's optimisation, in slices — whatever time is left. The tick's latency, and
 whether it missed its deadline (the next tick's start), are recorded in :class:`RuntimeStats`.
 
-Two schedules. ``budgeted`` (a robot, or ``bench runtime``) consults the clock as above.
-``lockstep`` never does: every tick runs the whole back end, so a run is bit-for-bit repeatable
-from its seed (the simulator, tests) and equal to :meth:`GraphSlam.step` scan by scan.
+Two schedules (``runtime.schedule``). ``budgeted`` (a robot, or ``bench runtime``) consults the
+clock as above. ``lockstep`` never does: every tick runs the whole back end, so a run is
+bit-for-bit repeatable from its seed (the simulator, replay, tests) and equal to
+:meth:`GraphSlam.step` scan by scan.
 
 Memory: everything that grows with time has a capacity fixed at start-up — nodes, edges and
-stored scans (``SlamConfig.max_nodes``/``max_edges``/``max_points``), trajectory poses
-(``max_scans``), the loop-search queue (``RuntimeConfig.loop_queue``), and the map's cells per
-side (``SlamConfig.map_cells``, at which it coarsens rather than grows). When one is reached
-the runtime keeps localising and says so in ``status``. Sizing: README, "Sizing a runtime".
+stored scans (``capacity.max_nodes``/``max_edges``, ``sensor.max_points``), trajectory poses
+(``capacity.max_scans``), the loop-search queue (``runtime.loop_queue``); the map is rendered
+on demand, at most ``map.max_cells`` a side. When one is reached the runtime keeps localising
+and says so in ``status``. Sizing: README, "The fixed-rate runtime".
 """
 
 from __future__ import annotations
 
 import threading
 import time
-from dataclasses import dataclass, replace
-from pathlib import Path
+from dataclasses import replace
 
 import numpy as np
 
-from runtime.back_end import BackEnd
-from runtime.g2o import write_g2o
+from runtime import session
+from runtime.config import SlamConfig, from_dict, override, to_dict
 from runtime.inbox import ScanInbox
-from runtime.map_io import write_map
 from runtime.scan import PointScan
-from runtime.slam import GraphSlam, SlamConfig, StepResult
-from runtime.tum import write_tum
+from runtime.slam import GraphSlam, StepResult
+from runtime.warm_up import LoopDrive
 
-SCHEDULES = ("budgeted", "lockstep")
-
-
-@dataclass(frozen=True)
-class RuntimeConfig:
-    rate_hz: float = 10.0
-    # Work allowed per tick; the rest of the period is the robot's (planner, drivers). The
-    # deadline is the period itself.
-    tick_budget: float = 0.015  # s
-    schedule: str = "budgeted"
-    # The swarm plans its evaluations for this share of the tick budget, and never drops
-    # below min_evaluation_share of its configured budget (accuracy before punctuality).
-    front_end_share: float = 0.6
-    min_evaluation_share: float = 0.25
-    loop_queue: int = 64  # nodes awaiting their loop search
-    max_deferred_ticks: int = 10  # a back-end slice waits at most this long, then runs
-    latency_window: int = 4096  # recent tick latencies kept for the median / p99
-    # Back every buffer with memory at start-up (None: when the schedule is budgeted).
-    commit_memory: bool | None = None
-
-    def __post_init__(self):
-        if self.schedule not in SCHEDULES:
-            raise ValueError(f"schedule must be one of {SCHEDULES}, got {self.schedule!r}")
-        if not self.rate_hz > 0:
-            raise ValueError(f"rate_hz must be > 0, got {self.rate_hz}")
-        if not 0 < self.tick_budget <= 1.0 / self.rate_hz:
-            raise ValueError(f"tick_budget must be in (0, period = {1 / self.rate_hz:g} s], "
-                             f"got {self.tick_budget}")
-        if not 0 < self.min_evaluation_share <= 1 or not 0 < self.front_end_share <= 1:
-            raise ValueError("front_end_share and min_evaluation_share must be in (0, 1]")
-
-    @property
-    def period(self) -> float:
-        return 1.0 / self.rate_hz
+PAGE = 4096  # bytes: commit_memory writes one byte per page
 
 
 class RuntimeStats:
@@ -112,6 +81,17 @@ class RuntimeStats:
     SCALARS = ("ticks", "scans", "deadline_misses", "over_budget", "max_latency",
                "evaluation_share")
 
+    def state(self) -> dict:
+        return {"latency": self.latency.copy(), **{k: getattr(self, k) for k in self.SCALARS}}
+
+    def restore(self, state: dict) -> None:
+        if state["latency"].shape != self.latency.shape:
+            raise ValueError(f"latency window {state['latency'].shape[0]} differs from "
+                             f"{self.latency.shape[0]}")
+        self.latency[:] = state["latency"]
+        for name in self.SCALARS:
+            setattr(self, name, type(getattr(self, name))(state[name]))
+
 
 def commit_memory(root, min_bytes: int = 1 << 16) -> int:
     """Write every large preallocated array reachable from ``root``, so the operating system
@@ -127,7 +107,7 @@ def commit_memory(root, min_bytes: int = 1 << 16) -> int:
         if isinstance(obj, np.ndarray):
             if obj.nbytes >= min_bytes and obj.flags.writeable and obj.base is None:
                 flat = obj.reshape(-1).view(np.uint8)
-                flat[::4096] += 0  # one write per page (values kept)
+                flat[::PAGE] += 0  # one write per page (values kept)
                 total += obj.nbytes
             continue
         if isinstance(obj, (list, tuple)):
@@ -140,77 +120,76 @@ def commit_memory(root, min_bytes: int = 1 << 16) -> int:
 class SlamRuntime:
     """One class for the simulator, the serial driver and log replay (see module doc)."""
 
-    def __init__(self, slam_config: SlamConfig | None = None, config: RuntimeConfig | None = None,
-                 seed: int = 0, initial_pose=None, clock=time.perf_counter):
-        self.config = c = config or RuntimeConfig()
-        self.slam = GraphSlam(slam_config, seed=seed, initial_pose=initial_pose)
+    def __init__(self, config: SlamConfig | None = None, seed: int = 0, initial_pose=None,
+                 clock=time.perf_counter):
+        self.config = config or SlamConfig()
+        rc = self.config.runtime
+        self.slam = GraphSlam(self.config, seed=seed, initial_pose=initial_pose)
         self.seed = seed
         self.clock = clock
-        points = self.slam.config.max_points
-        self.inbox = ScanInbox(points)
-        self.back_end = BackEnd(self.slam, c.loop_queue, c.max_deferred_ticks)
-        self.stats = RuntimeStats(c.latency_window)
-        self.scan = PointScan(points)
+        sensor = self.config.sensor
+        self.inbox = ScanInbox(sensor.max_points, sensor.min_range, sensor.max_range)
+        self.stats = RuntimeStats(rc.latency_window)
+        self.scan = PointScan(sensor.max_points)
         self.odometry = np.zeros(3)
         self.front_end_cost = 0.0  # s per tick at the full evaluation budget (running mean)
         self.last: StepResult | None = None
         # A robot commits its capacities now; a simulator making an env per episode need not.
-        commit = c.commit_memory if c.commit_memory is not None else c.schedule == "budgeted"
+        commit = rc.commit_memory if rc.commit_memory is not None else rc.schedule == "budgeted"
         self.reserved_bytes = commit_memory(self) if commit else 0
 
     # ------------------------------------------------------------------ Alg. 4, one tick
     def tick(self, deadline: float | None = None) -> StepResult | None:
         """One period: the newest scan through the front end, then back-end slices in the
         time left. ``deadline`` defaults to one period after the tick starts."""
-        c, stats = self.config, self.stats
-        lockstep = c.schedule == "lockstep"
+        rc, stats = self.config.runtime, self.stats
+        lockstep = rc.schedule == "lockstep"
+        clock = None if lockstep else self.clock
         start = 0.0 if lockstep else self.clock()
+        budget_end = None if lockstep else start + rc.tick_budget
         stats.ticks += 1
         got, has_odometry, stamp = self.inbox.take(self.scan, self.odometry)  # newest scan
         result = None
         if got:
             share = 1.0 if lockstep else self._evaluation_share(start)
-            result = self.slam.track(self.scan, self.odometry if has_odometry else None,
-                                     stamp)  # front end: Alg. 5 + Alg. 6, always
+            result = self.slam.step(self.scan, self.odometry if has_odometry else None, stamp,
+                                    clock, budget_end)  # front end always, back end in the rest
             if not lockstep:
-                self._learn_front_end_cost(self.clock() - start, share)
-            if result.node_added and self.slam.graph.n_nodes > 1:
-                self.back_end.enqueue(self.slam.keyframe)  # its Alg. 7, when time allows
-        closed = self.slam.loops.accepted
-        self.back_end.work(self.clock, None if lockstep else start + c.tick_budget)
-        if result is not None and self.slam.loops.accepted > closed:
-            result.loop_closed = True
-            result.pose = self.slam.pose()  # the closure moved the keyframe
+                self._learn_front_end_cost(result.front_end_seconds, share)
+        else:
+            self.slam.run_back_end(clock, budget_end)
         if not lockstep:
             end = self.clock()
-            if end > (start + c.period if deadline is None else deadline):
+            if end > (start + rc.period if deadline is None else deadline):
                 stats.deadline_misses += 1
             if got:
-                stats.record(end - start, c.tick_budget)
+                stats.record(end - start, rc.tick_budget)
         elif got:
             stats.scans += 1
         self.last = result
         return result
 
-    def warm_up(self, scans: int = 120) -> float:
+    def warm_up(self) -> float:
         """Run every compiled path once — matching, node insertion, loop search, optimisation —
-        on a synthetic loop through a throwaway runtime of this configuration, so that no
-        kernel is compiled or loaded on the hot path (the first loop closure would otherwise
-        cost a deadline or a few MB of resident memory mid-run). Returns the seconds taken."""
-        from runtime.synthetic import LoopDrive
-
+        on a synthetic loop (:class:`runtime.warm_up.LoopDrive`) through a throwaway runtime of
+        this configuration, so that no kernel is compiled or loaded on the hot path (the first
+        loop closure would otherwise cost a deadline or a few MB of resident memory mid-run).
+        Returns the seconds taken."""
         t0 = time.perf_counter()
-        c = self.slam.config  # the same kernels on small buffers
-        c = replace(c, max_nodes=64, max_edges=256, max_scans=scans + 1,
-                    matcher=replace(c.matcher, grid_cells=min(c.matcher.grid_cells, 320)))
-        scratch = SlamRuntime(c, RuntimeConfig(schedule="lockstep"), seed=self.seed)
+        c, scans = self.config, self.config.runtime.warm_up_scans
+        scratch_config = override(c, {  # the same kernels on small buffers
+            "capacity.max_nodes": 64, "capacity.max_edges": 256, "capacity.max_scans": scans + 1,
+            "matcher.grid_cells": min(c.matcher.grid_cells, 320)})
+        scratch_config = replace(scratch_config, runtime=replace(
+            c.runtime, schedule="lockstep", commit_memory=False))
+        scratch = SlamRuntime(scratch_config, seed=self.seed)
         drive = LoopDrive(self.seed, steps_per_lap=40)
         scan = PointScan(len(drive.angles))
         for k in range(scans):
             _, odometry, ranges = drive.next()
             scan.set_ranges(ranges, drive.angles, 0.05, drive.max_range)
             scratch.process(scan, odometry, float(k))
-        if scratch.slam.loops.accepted == 0:
+        if scratch.slam.loops_closed == 0:
             raise RuntimeError("warm-up closed no loop: the loop-closure kernels stay cold")
         return time.perf_counter() - t0
 
@@ -222,13 +201,13 @@ class SlamRuntime:
     def drain(self) -> int:
         """Finish all deferred back-end work now, however long it takes (end of a replay,
         before saving a map). Returns the slices run."""
-        return self.back_end.work(self.clock, None)
+        return self.slam.back_end.work(self.clock, None)
 
     def run(self, stop: threading.Event, max_ticks: int | None = None, on_tick=None) -> None:
         """The fixed-rate loop: a tick every period until ``stop`` is set. A tick that overruns
         its deadline is counted; the schedule then skips to the next period boundary instead
         of bunching late ticks together."""
-        period = self.config.period
+        period = self.config.runtime.period
         next_start = self.clock()
         done = 0
         while not stop.is_set() and (max_ticks is None or done < max_ticks):
@@ -248,25 +227,27 @@ class SlamRuntime:
     def _evaluation_share(self, start: float) -> float:
         """The swarm's budget for this tick: what fits in the front end's share of the tick
         budget at the measured cost, within [min_evaluation_share, 1]."""
-        c = self.config
-        available = start + c.front_end_share * c.tick_budget - self.clock()
+        rc = self.config.runtime
+        available = start + rc.front_end_share * rc.tick_budget - self.clock()
         share = 1.0 if self.front_end_cost <= 0 else available / self.front_end_cost
-        share = min(max(share, c.min_evaluation_share), 1.0)
-        self.slam.matcher.set_evaluation_share(share)
+        share = min(max(share, rc.min_evaluation_share), 1.0)
+        self.slam.front_end.matcher.set_evaluation_share(share)
         self.stats.evaluation_share = share
         return share
 
     def _learn_front_end_cost(self, took: float, share: float) -> None:
         full = took / share
+        a = self.config.runtime.front_end_cost_smoothing
         self.front_end_cost = full if self.front_end_cost <= 0 else \
-            0.9 * self.front_end_cost + 0.1 * full
+            (1.0 - a) * self.front_end_cost + a * full
 
     # ------------------------------------------------------------------ results
     @property
     def status(self) -> str:
-        if self.back_end.dropped:
-            extra = (f"loop queue full: {self.back_end.dropped} loop searches dropped "
-                     f"(raise RuntimeConfig.loop_queue or tick_budget)")
+        dropped = self.slam.back_end.dropped
+        if dropped:
+            extra = (f"loop queue full: {dropped} loop searches dropped "
+                     f"(raise runtime.loop_queue or runtime.tick_budget)")
             return extra if self.slam.status == "ok" else f"{self.slam.status}; {extra}"
         return self.slam.status
 
@@ -279,24 +260,16 @@ class SlamRuntime:
     def trajectory(self):
         return self.slam.trajectory()
 
-    def write_results(self, out_dir) -> None:
-        """The map (PGM + YAML for ROS map_server, PNG), the trajectory (TUM) and the pose
-        graph (g2o) into ``out_dir``, each written atomically."""
-        out = Path(out_dir)
-        write_map(out / "map", self.global_map())
-        write_tum(out / "trajectory.tum", *self.trajectory())
-        write_g2o(out / "graph.g2o", self.slam.graph)
-
     def report(self) -> dict:
         """Statistics a person or a benchmark wants: rate, latency, misses, SLAM, capacity."""
-        b, slam = self.back_end, self.slam
+        b, slam = self.slam.back_end, self.slam
         out = self.stats.summary()
         out.update({
             "stale_scans": self.inbox.stale,
             "empty_scans": self.inbox.empty,
             "nodes": int(slam.graph.n_nodes),
             "edges": int(slam.graph.n_edges),
-            "loops_accepted": slam.loops.accepted,
+            "loops_accepted": slam.loops_closed,
             "loop_searches": {"enqueued": b.enqueued, "done": b.searched, "pending": b.size
                               + (b.node >= 0), "dropped": b.dropped},
             "back_end_slices": {"select": int(b.slices[0]), "align": int(b.slices[1]),
@@ -308,14 +281,32 @@ class SlamRuntime:
         return out
 
     # ------------------------------------------------------------------ sessions
+    def state(self) -> dict:
+        """Everything needed to continue this run (see :mod:`runtime.session`)."""
+        return {"config": to_dict(self.config), "seed": self.seed, "slam": self.slam.state(),
+                "stats": self.stats.state(), "inbox": self.inbox.state(),
+                "front_end_cost": self.front_end_cost}
+
+    def restore(self, state: dict) -> None:
+        self.slam.restore(state["slam"])
+        self.stats.restore(state["stats"])
+        self.inbox.restore(state["inbox"])
+        self.front_end_cost = float(state["front_end_cost"])
+
     def save(self, path) -> None:
         """The whole state to one file, atomically (see :mod:`runtime.session`)."""
-        from runtime.session import save_session
-
-        save_session(path, self)
+        session.write_session(path, self.state())
 
     @classmethod
     def resume(cls, path, clock=time.perf_counter) -> SlamRuntime:
-        from runtime.session import load_session
-
-        return load_session(path, clock=clock)
+        """A runtime continuing the session saved at ``path``."""
+        state = session.read_session(path)
+        try:
+            runtime = cls(from_dict(state["config"]), seed=int(state["seed"]),
+                          initial_pose=state["slam"]["front_end"]["initial_pose"], clock=clock)
+            runtime.restore(state)
+        except KeyError as exc:
+            raise session.SessionError(f"{path}: missing field {exc.args[0]!r}") from None
+        except (ValueError, IndexError, TypeError) as exc:
+            raise session.SessionError(f"{path}: {exc}") from None
+        return runtime

@@ -19,13 +19,14 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
 from numba import njit
 from scipy.sparse.linalg import splu
 
+from runtime.config import OptimizerConfig
 from runtime.pose import wrap_angle_nb
 from runtime.pose_graph import PoseGraph, edge_error
 from runtime.sparse_ldl import SparseLDL, permute_triplets
@@ -201,16 +202,15 @@ class OptimizeReport:
 class GaussNewton:
     """Optimises a :class:`PoseGraph` in place; triplet buffers sized from its capacities."""
 
-    def __init__(self, graph: PoseGraph, max_iterations: int = 30, tolerance: float = 1e-9,
-                 solver: str = "ldl", fill_ratio: float = 4.0):
-        """``fill_ratio``: capacity of the LDLᵀ factor, in multiples of the largest possible
-        upper triangle of H (INTEL needed 1.5, M3500 2.5)."""
-        if solver not in ("ldl", "superlu"):
-            raise ValueError(f"unknown solver {solver!r}; choose 'ldl' or 'superlu'")
+    def __init__(self, graph: PoseGraph, config: OptimizerConfig | None = None, **overrides):
+        """``config`` (default: the defaults) with ``overrides`` of its fields, e.g.
+        ``GaussNewton(graph, solver="superlu")``; checked as the configuration tree is."""
+        c = replace(config or OptimizerConfig(), **overrides)
+        self.config = c
         self.graph = graph
-        self.max_iterations = max_iterations
-        self.tolerance = tolerance
-        self.solver = solver
+        self.max_iterations = c.max_iterations
+        self.tolerance = c.tolerance
+        self.solver = c.solver
         m = graph.max_edges
         self._rows = np.zeros(36 * m, np.int64)
         self._cols = np.zeros(36 * m, np.int64)
@@ -232,7 +232,7 @@ class GaussNewton:
         self._pcols = np.zeros(36 * m, np.int64)
         self._dx = np.zeros(unknowns)
         self._neg_b = np.zeros(unknowns)
-        self.ldl = SparseLDL(max(graph.max_nodes - 1, 1), int(fill_ratio * len(self._data_buf)))
+        self.ldl = SparseLDL(max(graph.max_nodes - 1, 1), int(c.fill_ratio * len(self._data_buf)))
         self._pattern_key = None
 
     def _pattern(self, rows, cols, size):
@@ -316,10 +316,10 @@ class GaussNewton:
         poses = g.poses[: g.n_nodes]
         saved = np.empty_like(poses)
         b, chi2 = self._system()
-        mu = 1e-5 * float(np.max(self._data[self._diag]))
+        mu = self.config.lm_initial_damping * float(np.max(self._data[self._diag]))
         nu = 2.0
         iterations = 0
-        for iterations in range(1, 10 * self.max_iterations + 1):
+        for iterations in range(1, self.config.lm_iteration_factor * self.max_iterations + 1):
             dx = self._solve(b, mu)
             saved[:] = poses
             apply_update(poses, dx)

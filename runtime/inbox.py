@@ -17,7 +17,9 @@ from runtime.scan import PointScan, ranges_to_points
 
 
 class ScanInbox:
-    def __init__(self, max_points: int):
+    def __init__(self, max_points: int, min_range: float = 0.0, max_range: float = np.inf):
+        """``min_range``/``max_range``: the sensor's; readings outside are dropped."""
+        self.min_range, self.max_range = float(min_range), float(max_range)
         self._pending = PointScan(max_points)
         self._odometry = np.zeros(3)
         self._has_odometry = False
@@ -28,14 +30,16 @@ class ScanInbox:
         self.stale = 0  # scans overwritten before a tick took them
         self.empty = 0  # scans with no valid reading, refused
 
-    def put_ranges(self, ranges, angles, stamp: float, odometry=None,
-                   min_range: float = 0.0, max_range: float = np.inf) -> bool:
-        """Hand over one scan as ranges (m) and beam angles (rad, robot frame), float64
-        arrays. Invalid readings are dropped here; a scan with none left is refused (False)."""
+    def put_ranges(self, *, angles, ranges, stamp: float, odometry=None) -> bool:
+        """Hand over one scan as beam angles (rad, robot frame) and ranges (m), float64
+        arrays, by keyword only (two arrays of one shape are easily swapped; a positional call
+        fails instead). Readings outside the sensor's ranges are dropped here; a scan with none
+        left is refused (False)."""
         with self._lock:
             if ranges.shape[0] != angles.shape[0]:
                 raise ValueError(f"{ranges.shape[0]} ranges but {angles.shape[0]} angles")
-            n = ranges_to_points(ranges, angles, min_range, max_range, self._pending.buffer)
+            n = ranges_to_points(ranges, angles, self.min_range, self.max_range,
+                                 self._pending.buffer)
             return self._accept(n, stamp, odometry)
 
     def put_points(self, points, count: int, stamp: float, odometry=None) -> bool:
@@ -77,3 +81,10 @@ class ScanInbox:
 
     def waiting(self) -> bool:
         return self._full
+
+    def state(self) -> dict:
+        return {"received": self.received, "stale": self.stale, "empty": self.empty}
+
+    def restore(self, state: dict) -> None:
+        self.received, self.stale = int(state["received"]), int(state["stale"])
+        self.empty = int(state["empty"])

@@ -1,4 +1,4 @@
-"""Seek_Loop_Closure (Alg. 7, method.md §5): candidates, outlier elimination, alignment, and
+"""Seek_Loop_Closure (Alg. 7; docs/method.md "Loop closure"): candidates, outlier elimination, alignment, and
 the consistency test that replaces the literal "error did not grow" rule.
 
 1. Candidates: nodes near the new node's position, the most recent ones excluded (they are
@@ -22,11 +22,10 @@ the consistency test that replaces the literal "error did not grow" rule.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-
 import numpy as np
 from numba import njit
 
+from runtime.config import LoopClosureConfig
 from runtime.pose import between
 
 CHI2_2D_95 = 5.991
@@ -74,27 +73,6 @@ def propagate_covariance(cov_prev, pose_prev, z, z_cov, out):
     jz[1, 1] = c
     jz[2, 2] = 1.0
     out[:, :] = jx @ cov_prev @ jx.T + jz @ z_cov @ jz.T
-
-
-@dataclass(frozen=True)
-class LoopClosureConfig:
-    search_radius: float = 6.0  # m: candidates beyond this are never considered
-    exclude_recent: int = 10  # nodes just behind the new one are neighbours, not loops
-    max_candidates: int = 8  # gated candidates kept, closest first
-    max_attempts: int = 3  # alignments tried per new node
-    chi2_gate: float = 7.81  # χ²₃ at 95% on the new edge's own error after optimising
-    total_gate: float = 16.27  # χ²₃ at 99.9% on the rise of the total error
-    # Share of points within inlier_distance of the candidate's surface. Strict: a wrong loop
-    # bends the whole map, a missed one costs a little accuracy (0.6 and 0.7 let wrong loops
-    # through in Intel's look-alike rooms).
-    min_inliers: float = 0.8
-    inlier_distance: float = 0.2  # m
-    position_floor: float = 0.1  # m: minimum std of the relative position in the gate
-    # The candidate's side of the match is a local submap: its own scan and the scans of up to
-    # submap_nodes nodes either side of it (placed by the graph), as Cartographer matches scans
-    # against submaps. A single 180° scan seldom overlaps a pass made in the other direction;
-    # the submap around the candidate does. 0: the candidate's scan alone.
-    submap_nodes: int = 2
 
 
 class LoopCloser:

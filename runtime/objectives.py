@@ -15,12 +15,13 @@ import math
 
 from numba import njit
 
+from runtime.config import KERNEL_NAMES
 from runtime.distance_field import INV_RES, NX, NY, OX, OY, R2, lookup_grid
 from runtime.local_map import UNKNOWN
 
-KERNEL_PAPER = 0
-KERNEL_CAUCHY = 1
-KERNELS = {"paper": KERNEL_PAPER, "cauchy": KERNEL_CAUCHY}
+KERNEL_PAPER = KERNEL_NAMES.index("paper")
+KERNEL_CAUCHY = KERNEL_NAMES.index("cauchy")
+KERNELS = {name: code for code, name in enumerate(KERNEL_NAMES)}
 
 
 # Reassociation and contraction (FMA) let LLVM schedule the inner loop ~1.9x faster; NaN and

@@ -121,6 +121,27 @@ class PoseGraph:
         self.n_edges -= 1
         self.revision += 1
 
+    # ------------------------------------------------------------------ state
+    def state(self) -> dict:
+        n, m = self.n_nodes, self.n_edges
+        return {"poses": self.poses[:n].copy(), "stamps": self.stamps[:n].copy(),
+                "ij": self.ij[:m].copy(), "z": self.z[:m].copy(), "info": self.info[:m].copy(),
+                "kind": self.kind[:m].copy(), "revision": self.revision}
+
+    def restore(self, state: dict) -> None:
+        n, m = len(state["poses"]), len(state["ij"])
+        if n > self.max_nodes or m > self.max_edges:
+            raise ValueError(f"{n} nodes and {m} edges exceed the capacities {self.max_nodes} "
+                             f"and {self.max_edges}")
+        ij = state["ij"]
+        if m and (ij.min() < 0 or ij.max() >= n or np.any(ij[:, 0] == ij[:, 1])):
+            raise ValueError("an edge joins nodes that do not exist")
+        self.n_nodes, self.n_edges = n, m
+        self.poses[:n], self.stamps[:n] = state["poses"], state["stamps"]
+        self.ij[:m], self.z[:m], self.info[:m] = ij, state["z"], state["info"]
+        self.kind[:m] = state["kind"]
+        self.revision = int(state["revision"])
+
     def errors(self) -> np.ndarray:
         """Eq. 18 for every edge, ``(E, 3)`` (a view of an internal buffer)."""
         n = self.n_edges

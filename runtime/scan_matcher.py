@@ -14,7 +14,7 @@ The whole of one alignment runs in one compiled call on buffers allocated at con
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -22,7 +22,8 @@ from numba import njit
 from runtime.distance_field import N_META, build_distance_field
 from runtime.local_map import build_local_map, robot_square
 from runtime.objectives import KERNELS, inlier_fraction, scan_to_map_cost, scan_to_scan_error
-from runtime.optimizers import SwarmConfig, SwarmOptimizer, ask, start, tell
+from runtime.config import MatcherConfig
+from runtime.optimizers import SwarmOptimizer, ask, start, tell
 from runtime.optimizers.workspace import BEST_VAL, EVALUATIONS, ITERATION, reset_run
 from runtime.scan import PointScan
 from runtime.threshold import RejectionThreshold
@@ -49,80 +50,6 @@ N_SETTINGS = 15
 # Layout of the ``out`` array it fills.
 R_X, R_Y, R_T, R_LAMBDA, R_USED_MAP, R_ITERATIONS, R_EVALUATIONS, R_LAMBDA_SCAN = range(8)
 N_OUT = 8
-
-
-def _budgeted_swarm() -> SwarmConfig:
-    return SwarmConfig(max_evaluations=3000)
-
-
-@dataclass(frozen=True)
-class MatcherConfig:
-    """Scan matcher settings. The defaults are the ones ``swarmslam bench matcher`` measures
-    (README); :meth:`paper` gives the paper's own form for comparison."""
-
-    # The swarm: Table 1 parameters and the paper's halting rules, plus an evaluation budget
-    # for the global stage (a fixed-rate tick needs a bound; 3000 reached every target).
-    swarm: SwarmConfig = field(default_factory=_budgeted_swarm)
-    resolution: float = 0.05  # m per distance-field / local-grid cell
-    # Per-point cost: "paper" is Eq. 14 (log of the summed squared distances, truncated at
-    # field_radius); "cauchy" is the spec's per-point robust kernel log(1 + d²/c²), which
-    # halves the error where scans overlap partially (README, matcher benchmark).
-    kernel: str = "cauchy"
-    cauchy_scale: float = 0.1  # m, c of the Cauchy kernel
-    field_radius: float = 0.5  # m: distances are exact below, truncated above
-    max_gap: float = 1.0  # m: neighbouring reference points closer than this form a surface
-    # Coarse-to-fine: the global stage searches a coarse field of plain d² this wide (a broad
-    # basin the swarm finds reliably) on every stride-th point; a local stage then polishes
-    # the result on the fine field with all points.
-    coarse_resolution: float = 0.1  # m; 0 disables the coarse field
-    coarse_radius: float = 0.6  # m
-    stride: int = 2
-    refine_evaluations: int = 600  # budget of the local stage (0: none)
-    refine_window: tuple[float, float, float] = (0.15, 0.15, 0.08)  # its half-widths
-    # Without a guess the box covers the keyframe data's motions (up to 1.8 m, 1.4 rad).
-    search_window: tuple[float, float, float] = (2.0, 2.0, 1.6)
-    guess_window: tuple[float, float, float] = (0.3, 0.3, 0.3)  # half-widths around a guess
-    grid_cells: int = 1024  # capacity per side of the reference grids
-    # Alg. 5's scan-to-map fallback. Off by default: on the keyframe logs its result was kept
-    # for 0.1–0.2% of pairs, changed no failure, and raised p99 latency ~5× (README).
-    scan_to_map: bool = False
-    robot_diameter: float = 0.35  # m, for Eq. 17
-    occupied_radius: float = 0.1  # m, ramp around obstacles in the local grid
-
-    @classmethod
-    def for_optimizer(cls, optimizer: str, **overrides) -> "MatcherConfig":
-        """The default matcher with another swarm method (its budget kept)."""
-        return cls(swarm=replace(_budgeted_swarm(), optimizer=optimizer), **overrides)
-
-    @classmethod
-    def paper(cls, optimizer: str = "abc", **overrides) -> "MatcherConfig":
-        """The paper's matcher: Eq. 14 on a single field, the swarm halted by its own rules."""
-        base = dict(
-            swarm=SwarmConfig(optimizer=optimizer),
-            kernel="paper",
-            field_radius=1.0,
-            coarse_resolution=0.0,
-            stride=1,
-            refine_evaluations=0,
-            scan_to_map=True,
-        )
-        base.update(overrides)
-        return cls(**base)
-
-    def __post_init__(self):
-        if self.kernel not in KERNELS:
-            raise ValueError(f"unknown kernel {self.kernel!r}; choose one of {sorted(KERNELS)}")
-        for name in ("resolution", "field_radius", "cauchy_scale", "occupied_radius"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
-        if self.stride < 1 or self.refine_evaluations < 0:
-            raise ValueError("stride must be >= 1 and refine_evaluations >= 0")
-        for name in ("search_window", "guess_window", "refine_window"):
-            w = getattr(self, name)
-            if len(w) != 3 or not all(v > 0 for v in w):
-                raise ValueError(f"{name} needs three half-widths > 0, got {w}")
-        if self.grid_cells < 8:
-            raise ValueError(f"grid_cells must be >= 8, got {self.grid_cells}")
 
 
 class ReferenceMaps:
@@ -271,6 +198,18 @@ class ScanMatcher:
         self.settings = s
         self._out = np.zeros(N_OUT)
         self._box = np.zeros((2, 3))
+
+    def state(self) -> dict:
+        """The swarm's random stream and buffers, and the rejection threshold."""
+        ws = self.optimizer.ws
+        return {"swarm": {name: getattr(ws, name).copy() for name in ws._fields},
+                "threshold": list(self.threshold.state())}
+
+    def restore(self, state: dict) -> None:
+        ws = self.optimizer.ws
+        for name in ws._fields:
+            getattr(ws, name)[...] = state["swarm"][name]
+        self.threshold.restore(state["threshold"])
 
     def set_evaluation_share(self, share: float) -> int:
         """Scale both stages' evaluation budgets to ``share`` (0–1] of the configured ones: a

@@ -1,27 +1,26 @@
-"""Sessions: the whole runtime state in one file, saved atomically, resumed exactly.
+"""Sessions: a runtime's state in one file, saved atomically, read back verified.
 
-A session holds the configuration, the pose graph, every node's stored scan, the trajectory,
-the matchers' random streams and rejection thresholds, the back end's queued work and the
-statistics — enough that ``save → kill → resume`` continues the same map, and in the lockstep
-schedule the same run bit for bit (the map itself is rebuilt from the nodes on demand).
+This module is a codec and knows nothing of what it stores: a *state* is a nested dict whose
+leaves are numpy arrays or JSON values (numbers, strings, lists), as every stateful component's
+``state()`` returns it and its ``restore()`` takes it back
+(:meth:`runtime.fixed_rate.SlamRuntime.state`). docs/formats.md "Sessions" has the layout.
 
-Format: a NumPy ``.npz`` archive (uncompressed): one ``meta`` entry (JSON), the arrays, and a
+Format: a NumPy ``.npz`` archive (uncompressed): one ``meta`` entry (JSON: the format, its
+version and the state's JSON leaves), one entry per array leaf named by its dotted path, and a
 ``checksum`` (SHA-256 over the meta and every array's name, dtype, shape and bytes).
 
 Saving writes a temp file beside the target, fsyncs it and renames it over the target, after
 keeping the previous good session as ``<name>.prev``. A power cut mid-save leaves the old file;
-a truncated or corrupt file (bad archive, checksum mismatch, missing entry) is refused on load
+a truncated or corrupt file (bad archive, checksum mismatch, missing entry) is refused on read
 with :class:`SessionError` naming the file and the problem — and the ``.prev`` file, if any.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import io
 import json
 import os
-import typing
 import zipfile
 from pathlib import Path
 
@@ -30,86 +29,48 @@ import numpy as np
 from runtime.writers import write_bytes_atomic
 
 FORMAT = "swarmslam-session"
-VERSION = 1
+VERSION = 2
+ARRAY = "__array__"  # marks, in the meta, a leaf stored as an archive entry
 
 
 class SessionError(ValueError):
     """A session file that cannot be resumed."""
 
 
-# ---------------------------------------------------------------------- configs ⇄ JSON
-def config_to_dict(config) -> dict:
-    return dataclasses.asdict(config)
+def encode(state: dict) -> tuple[dict, dict]:
+    """(JSON tree with array leaves replaced by markers, {dotted path: array})."""
+    arrays: dict = {}
+
+    def walk(node, path):
+        if isinstance(node, dict):
+            return {key: walk(value, f"{path}.{key}" if path else key)
+                    for key, value in node.items()}
+        if isinstance(node, np.ndarray):
+            arrays[path] = np.ascontiguousarray(node)
+            return ARRAY
+        if isinstance(node, np.generic):
+            return node.item()
+        if isinstance(node, (list, tuple)):
+            return [walk(v, path) for v in node]
+        return node
+
+    return walk(state, ""), arrays
 
 
-def config_from_dict(cls, data: dict, where: str = "config"):
-    """Rebuild a (nested) frozen config dataclass from :func:`config_to_dict`'s output."""
-    hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = set(data) - names
-    if unknown:
-        raise SessionError(f"{where}: unknown field(s) {sorted(unknown)} for {cls.__name__}")
-    kwargs = {}
-    for name, value in data.items():
-        kind = hints.get(name)
-        if dataclasses.is_dataclass(kind) and isinstance(value, dict):
-            value = config_from_dict(kind, value, f"{where}.{name}")
-        elif isinstance(value, list):
-            value = tuple(value)
-        kwargs[name] = value
-    try:
-        return cls(**kwargs)
-    except (TypeError, ValueError) as exc:
-        raise SessionError(f"{where}: {exc}") from None
+def decode(tree: dict, arrays: dict) -> dict:
+    """The state :func:`encode` took apart."""
 
+    def walk(node, path):
+        if isinstance(node, dict):
+            return {key: walk(value, f"{path}.{key}" if path else key)
+                    for key, value in node.items()}
+        if node == ARRAY:
+            if path not in arrays:
+                raise KeyError(path)
+            return arrays[path]
+        return node
 
-# ---------------------------------------------------------------------- state ⇄ arrays
-def _workspace_arrays(prefix: str, ws) -> dict:
-    return {f"{prefix}.{name}": getattr(ws, name) for name in ws._fields}
-
-
-def runtime_state(runtime) -> tuple[dict, dict]:
-    """(meta, arrays) describing ``runtime`` completely."""
-    slam, g = runtime.slam, runtime.slam.graph
-    n, m, k = g.n_nodes, g.n_edges, slam.n_scans
-    counts = slam.node_counts[:n]
-    points = np.concatenate([slam.node_points[i, : counts[i]] for i in range(n)]) if n else \
-        np.zeros((0, 2))
-    arrays = {
-        "graph.poses": g.poses[:n], "graph.stamps": g.stamps[:n], "graph.ij": g.ij[:m],
-        "graph.z": g.z[:m], "graph.info": g.info[:m], "graph.kind": g.kind[:m],
-        "nodes.counts": counts, "nodes.points": points, "nodes.cov": slam.node_cov[:n],
-        "scans.node": slam.scan_node[:k], "scans.rel": slam.scan_rel[:k],
-        "scans.stamp": slam.scan_stamp[:k],
-        "slam.rel": slam.rel, "slam.motion": slam.motion, "slam.initial_pose": slam.initial_pose,
-        "slam.last_odometry": slam.last_odometry,
-        "stats.latency": runtime.stats.latency,
-    }
-    arrays.update(_workspace_arrays("matcher.ws", slam.matcher.optimizer.ws))
-    arrays.update(_workspace_arrays("loop_matcher.ws", slam.loop_matcher.optimizer.ws))
-    for key, value in runtime.back_end.state().items():
-        arrays[f"back_end.{key}"] = value
-    meta = {
-        "format": FORMAT,
-        "version": VERSION,
-        "seed": runtime.seed,
-        "slam_config": config_to_dict(slam.config),
-        "runtime_config": config_to_dict(runtime.config),
-        "graph_revision": g.revision,
-        "keyframe": slam.keyframe,
-        "weak": slam.weak,
-        "have_odometry": slam.have_odometry,
-        "lost_matches": slam.lost_matches,
-        "status": slam.status,
-        "loops": [slam.loops.attempts, slam.loops.accepted, slam.loops.rejected_match,
-                  slam.loops.rejected_consistency],
-        "thresholds": [list(slam.matcher.threshold.state()),
-                       list(slam.loop_matcher.threshold.state())],
-        "front_end_cost": runtime.front_end_cost,
-        "stats": {name: getattr(runtime.stats, name) for name in runtime.stats.SCALARS},
-        "inbox": [runtime.inbox.received, runtime.inbox.stale, runtime.inbox.empty],
-    }
-    return meta, {key: np.ascontiguousarray(v) for key, v in arrays.items()}
+    return walk(tree, "")
 
 
 def _checksum(meta_bytes: bytes, arrays: dict) -> str:
@@ -121,10 +82,11 @@ def _checksum(meta_bytes: bytes, arrays: dict) -> str:
     return h.hexdigest()
 
 
-def save_session(path, runtime) -> Path:
-    """Write ``runtime``'s state to ``path`` atomically; the previous file becomes ``.prev``."""
+def write_session(path, state: dict) -> Path:
+    """Write ``state`` to ``path`` atomically; the previous file becomes ``.prev``."""
     path = Path(path)
-    meta, arrays = runtime_state(runtime)
+    tree, arrays = encode(state)
+    meta = {"format": FORMAT, "version": VERSION, "state": tree}
     meta_bytes = json.dumps(meta, sort_keys=True).encode()
     buffer = io.BytesIO()
     np.savez(buffer, meta=np.frombuffer(meta_bytes, np.uint8),
@@ -138,8 +100,8 @@ def save_session(path, runtime) -> Path:
     return write_bytes_atomic(path, buffer.getvalue())
 
 
-def read_session(path) -> tuple[dict, dict]:
-    """(meta, arrays) from a session file, verified; :class:`SessionError` otherwise."""
+def read_session(path) -> dict:
+    """The state in a session file, verified; :class:`SessionError` otherwise."""
     path = Path(path)
 
     def refuse(problem: str):
@@ -163,85 +125,15 @@ def read_session(path) -> tuple[dict, dict]:
         meta = json.loads(meta_bytes)
     except ValueError as exc:
         raise refuse(f"meta is not valid JSON: {exc}") from None
-    if meta.get("format") != FORMAT:
-        raise refuse(f"format is {meta.get('format')!r}, expected {FORMAT!r}")
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        got = meta.get("format") if isinstance(meta, dict) else None
+        raise refuse(f"format is {got!r}, expected {FORMAT!r}")
     if meta.get("version") != VERSION:
         raise refuse(f"session version {meta.get('version')} is not supported (this build "
                      f"reads version {VERSION})")
     if _checksum(meta_bytes, data) != stored:
         raise refuse("checksum mismatch: the file is corrupt")
-    return meta, data
-
-
-def load_session(path, clock=None):
-    """A :class:`SlamRuntime` continuing the saved session."""
-    import time
-
-    from runtime.fixed_rate import RuntimeConfig, SlamRuntime
-    from runtime.slam import SlamConfig
-
-    meta, a = read_session(path)
     try:
-        slam_config = config_from_dict(SlamConfig, meta["slam_config"], "slam_config")
-        runtime_config = config_from_dict(RuntimeConfig, meta["runtime_config"], "runtime_config")
-        runtime = SlamRuntime(slam_config, runtime_config, seed=meta["seed"],
-                              initial_pose=a["slam.initial_pose"], clock=clock or time.perf_counter)
-        _restore(runtime, meta, a)
+        return decode(meta["state"], data)
     except KeyError as exc:
-        raise SessionError(f"{path}: missing field {exc.args[0]!r}") from None
-    except (ValueError, IndexError) as exc:
-        raise SessionError(f"{path}: {exc}") from None
-    return runtime
-
-
-def _restore(runtime, meta: dict, a: dict) -> None:
-    slam, g = runtime.slam, runtime.slam.graph
-    n, m, k = len(a["graph.poses"]), len(a["graph.ij"]), len(a["scans.node"])
-    c = slam.config
-    for what, used, cap in (("nodes", n, g.max_nodes), ("edges", m, g.max_edges),
-                            ("scans", k, c.max_scans)):
-        if used > cap:
-            raise ValueError(f"{used} {what} exceed the capacity {cap}")
-    g.n_nodes, g.n_edges = n, m
-    g.poses[:n], g.stamps[:n] = a["graph.poses"], a["graph.stamps"]
-    g.ij[:m], g.z[:m], g.info[:m], g.kind[:m] = a["graph.ij"], a["graph.z"], a["graph.info"], \
-        a["graph.kind"]
-    g.revision = int(meta["graph_revision"])
-    counts = a["nodes.counts"]
-    if len(counts) != n or int(counts.sum()) != len(a["nodes.points"]):
-        raise ValueError("node scan counts do not match the stored points")
-    offsets = np.concatenate([[0], np.cumsum(counts)])
-    for i in range(n):
-        slam.node_points[i, : counts[i]] = a["nodes.points"][offsets[i] : offsets[i + 1]]
-    slam.node_counts[:n] = counts
-    slam.node_cov[:n] = a["nodes.cov"]
-    slam.scan_node[:k], slam.scan_rel[:k], slam.scan_stamp[:k] = a["scans.node"], \
-        a["scans.rel"], a["scans.stamp"]
-    slam.n_scans = k
-    slam.rel[:], slam.motion[:] = a["slam.rel"], a["slam.motion"]
-    slam.last_odometry[:] = a["slam.last_odometry"]
-    slam.have_odometry = bool(meta["have_odometry"])
-    slam.keyframe = int(meta["keyframe"])
-    slam.weak = bool(meta["weak"])
-    slam.lost_matches = int(meta["lost_matches"])
-    slam.status = str(meta["status"])
-    loops = slam.loops
-    loops.attempts, loops.accepted, loops.rejected_match, loops.rejected_consistency = \
-        (int(v) for v in meta["loops"])
-    slam.matcher.threshold.restore(meta["thresholds"][0])
-    slam.loop_matcher.threshold.restore(meta["thresholds"][1])
-    for prefix, matcher in (("matcher.ws", slam.matcher), ("loop_matcher.ws", slam.loop_matcher)):
-        ws = matcher.optimizer.ws
-        for name in ws._fields:
-            getattr(ws, name)[...] = a[f"{prefix}.{name}"]
-    if slam.keyframe >= 0:
-        if not 0 <= slam.keyframe < n:
-            raise ValueError(f"keyframe {slam.keyframe} is not a stored node")
-        slam.rebuild_keyframe_reference()
-    runtime.back_end.restore({key[len("back_end."):]: v for key, v in a.items()
-                              if key.startswith("back_end.")})
-    runtime.front_end_cost = float(meta["front_end_cost"])
-    for name, value in meta["stats"].items():
-        setattr(runtime.stats, name, value)
-    runtime.stats.latency[:] = a["stats.latency"]
-    runtime.inbox.received, runtime.inbox.stale, runtime.inbox.empty = meta["inbox"]
+        raise refuse(f"missing entry {exc.args[0]!r}") from None

@@ -8,10 +8,12 @@ import sys
 import time
 from pathlib import Path
 
+from runtime.config import DEFAULT_PRESET, OPTIMIZERS, PRESETS, SlamConfig, load_config, preset, to_toml
+
 
 def _bench_matcher(args) -> int:
-    from runtime.benchmarks.matcher import DATASETS, bench_matcher
-    from runtime.datasets import find_datasets
+    from scripts.bench.matcher import DATASETS, bench_matcher
+    from scripts.datasets import find_datasets
 
     data = find_datasets(args.data)
     optimizers = tuple(o.strip() for o in args.optimizers.split(",") if o.strip())
@@ -27,16 +29,16 @@ def _bench_matcher(args) -> int:
 
 
 def _bench_posegraph(args) -> int:
-    from runtime.benchmarks.posegraph import bench_posegraph
-    from runtime.datasets import find_datasets
+    from scripts.bench.posegraph import bench_posegraph
+    from scripts.datasets import find_datasets
 
     bench_posegraph(find_datasets(args.data), args.repeats, args.json)
     return 0
 
 
 def _bench_slam(args) -> int:
-    from runtime.benchmarks.slam import LOGS, bench_slam
-    from runtime.datasets import find_datasets
+    from scripts.bench.slam import LOGS, bench_slam
+    from scripts.datasets import find_datasets
 
     logs = tuple(d.strip() for d in args.datasets.split(",") if d.strip())
     for d in logs:
@@ -49,7 +51,7 @@ def _bench_slam(args) -> int:
 
 
 def _bench_env(args) -> int:
-    from swarmslam_sim.benchmark import bench_env
+    from scripts.bench.env import bench_env
 
     bench_env(args.world, args.steps, args.slam_steps, args.json)
     if args.json:
@@ -58,8 +60,8 @@ def _bench_env(args) -> int:
 
 
 def _bench_runtime(args) -> int:
-    from runtime.benchmarks.runtime import bench_runtime, bench_soak
-    from runtime.datasets import find_datasets
+    from scripts.bench.runtime import bench_runtime, bench_soak
+    from scripts.datasets import find_datasets
 
     if args.soak is not None:
         bench_soak(args.soak, args.json)
@@ -71,11 +73,28 @@ def _bench_runtime(args) -> int:
     return 0
 
 
+def _config(args, default_preset: str) -> SlamConfig | None:
+    """``--config FILE`` over ``--preset`` (default: ``default_preset``); None when neither
+    is given, so the command builds its own default."""
+    if not (args.preset or args.config):
+        return None
+    base = preset(args.preset or default_preset)
+    return load_config(args.config, base) if args.config else base
+
+
+def _config_show(args) -> int:
+    config = preset(args.preset or DEFAULT_PRESET)
+    if args.config:
+        config = load_config(args.config, config)
+    sys.stdout.write(to_toml(config, comments=not args.bare))
+    return 0
+
+
 def _replay(args) -> int:
-    from runtime.replay import replay
+    from scripts.replay import replay
 
     m = replay(args.log, args.relations, args.optimizer, not args.no_odometry, args.out,
-               args.limit, args.seed)
+               args.limit, args.seed, config=_config(args, DEFAULT_PRESET))
     print(f"{m['scans']} scans, {m['nodes']} nodes, {m['loops_accepted']} loops closed, "
           f"{m['real_time_factor']:.1f}x real time, latency {m['latency_ms_median']:.1f} ms "
           f"median / {m['latency_ms_p99']:.1f} ms p99")
@@ -90,9 +109,10 @@ def _replay(args) -> int:
 
 
 def _lidar(args) -> int:
-    from hardware.live import run_live
+    from scripts.live import run_live
 
-    run_live(args.port, args.model, args.mode, args.out, args.rate, args.seconds, args.resume)
+    run_live(args.port, args.model, args.mode, args.out, args.rate, args.seconds, args.resume,
+             config=_config(args, f"rplidar-{args.model}"))
     return 0
 
 
@@ -100,11 +120,11 @@ def _emulate(args) -> int:
     from hardware.emulator import Faults, VirtualRPLidar
 
     if args.log:
-        from hardware.sources import CarmenSource
+        from scripts.emulator_sources import CarmenSource
 
         source, what = CarmenSource(args.log), f"log {args.log}"
     else:
-        from swarmslam_sim.scanner_source import WorldSource
+        from scripts.emulator_sources import WorldSource
 
         source, what = WorldSource(args.world, seed=args.seed), f"world {args.world}"
     faults = Faults.parse(args.faults or "")
@@ -125,21 +145,39 @@ def _emulate(args) -> int:
 
 def _demo(args) -> int:
     if args.matcher_only:
-        from runtime.demo import run_demo
+        from scripts.matcher_demo import run_demo
 
-        run_demo(out_dir=Path(args.out), optimizer=args.optimizer, seed=args.seed,
+        run_demo(out_dir=Path(args.out), optimizer=args.optimizer or "abc", seed=args.seed,
                  steps=args.steps or 120)
         return 0
-    from swarmslam_sim.demo import run_exploration_demo
+    from scripts.demo import run_exploration_demo
 
     run_exploration_demo(Path(args.out), world=args.world, optimizer=args.optimizer,
-                         seed=args.seed, max_steps=args.steps or 1500)
+                         seed=args.seed, max_steps=args.steps or 1500,
+                         config=_config(args, "sim-rplidar-a1"))
     return 0
+
+
+def _config_options(parser, default: str) -> None:
+    parser.add_argument("--config", metavar="FILE",
+                        help="TOML file changing fields of the configuration "
+                             "(see: swarmslam config show)")
+    parser.add_argument("--preset", choices=list(PRESETS), help=f"configuration preset "
+                        f"(default: {default})")
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="swarmslam", description=__doc__.split("\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
+
+    cf = sub.add_parser("config", help="the SLAM's configuration")
+    csub = cf.add_subparsers(dest="action", required=True)
+    show = csub.add_parser("show", help="print the full effective configuration as TOML")
+    show.add_argument("preset", nargs="?", choices=list(PRESETS),
+                      help=f"a preset (default: {DEFAULT_PRESET})")
+    show.add_argument("--config", metavar="FILE", help="with this TOML file's changes")
+    show.add_argument("--bare", action="store_true", help="without the comments")
+    show.set_defaults(func=_config_show)
 
     models = ["a1", "a2", "a3", "s1", "s2", "c1"]
     li = sub.add_parser("lidar", help="live SLAM from an RPLidar (or the emulator) at a fixed rate")
@@ -147,9 +185,10 @@ def build_parser() -> argparse.ArgumentParser:
     li.add_argument("--model", default="a1", choices=models)
     li.add_argument("--mode", default="express", choices=["standard", "express"])
     li.add_argument("--out", default="swarmslam-live", help="output folder (written on Ctrl-C)")
-    li.add_argument("--rate", type=float, default=10.0, help="SLAM ticks per second")
+    li.add_argument("--rate", type=float, help="SLAM ticks per second (default: the configuration's, 10)")
     li.add_argument("--seconds", type=float, help="stop after this long (default: Ctrl-C)")
     li.add_argument("--resume", help="continue a saved session file")
+    _config_options(li, "the model's preset")
     li.set_defaults(func=_lidar)
     em = sub.add_parser("emulate", help="a virtual RPLidar on a pseudo-terminal")
     source = em.add_mutually_exclusive_group()
@@ -165,21 +204,25 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--out", default="swarmslam-demo", help="output folder")
     demo.add_argument("--world", default="office",
                       help="built-in world, generator (rooms, maze, clutter) or .world file")
-    demo.add_argument("--optimizer", default="abc", choices=["abc", "pso", "fa"])
+    demo.add_argument("--optimizer", choices=OPTIMIZERS,
+                      help="swarm method (default: the configuration's, abc)")
     demo.add_argument("--seed", type=int, default=0)
     demo.add_argument("--steps", type=int, help="step limit (default 1500; 120 with --matcher-only)")
     demo.add_argument("--matcher-only", action="store_true",
                       help="runtime only, no simulator: chain swarm matches around a synthetic loop")
+    _config_options(demo, "the simulator's preset")
     demo.set_defaults(func=_demo)
 
     rp = sub.add_parser("replay", help="run the SLAM over a CARMEN log")
     rp.add_argument("log", help="CARMEN log (.clf, .log, plain or .gz)")
     rp.add_argument("--relations", help="Kümmerle relations file to score against")
-    rp.add_argument("--optimizer", default="abc", choices=["abc", "pso", "fa"])
+    rp.add_argument("--optimizer", choices=OPTIMIZERS,
+                    help="swarm method (default: the configuration's, abc)")
     rp.add_argument("--no-odometry", action="store_true", help="scans only, as in the paper")
     rp.add_argument("--out", default="swarmslam-replay", help="output folder")
     rp.add_argument("--limit", type=int, help="only the first N scans")
     rp.add_argument("--seed", type=int, default=0)
+    _config_options(rp, DEFAULT_PRESET)
     rp.set_defaults(func=_replay)
 
     bench = sub.add_parser("bench", help="benchmarks (JSON + table)")
@@ -216,7 +259,7 @@ def build_parser() -> argparse.ArgumentParser:
     rt = bsub.add_parser("runtime", help="the fixed-rate runtime on Intel: latency, misses, "
                                           "memory, accuracy; or --soak on simulated scans")
     rt.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
-    rt.add_argument("--optimizer", default="abc", choices=["abc", "pso", "fa"])
+    rt.add_argument("--optimizer", default="abc", choices=OPTIMIZERS)
     rt.add_argument("--realtime-minutes", type=float, default=2.0,
                     help="minutes of the log replayed at its recorded rate (0: skip; 45: all)")
     rt.add_argument("--traced-ticks", type=int, default=6000,

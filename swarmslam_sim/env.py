@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import replace
 
 import gymnasium as gym
 import numpy as np
@@ -12,21 +11,12 @@ from gymnasium import spaces
 
 from runtime.pose import between_nb, compose_nb, wrap_angle
 from runtime.scan import PointScan, ranges_to_points
-from runtime.scan_matcher import MatcherConfig
-from runtime.fixed_rate import RuntimeConfig, SlamRuntime
-from runtime.slam import SlamConfig
+from runtime.config import OPTIMIZERS, SlamConfig, override, simulated
+from runtime.fixed_rate import SlamRuntime
 from swarmslam_sim.lidar import Lidar, lidar_config
 from swarmslam_sim.mapping import crop_probability, world_grid
 from swarmslam_sim.physics import SUBSTEP, Robot, build_space
-from swarmslam_sim.world import get_world
-
-
-def tracking_matcher(optimizer: str) -> MatcherConfig:
-    """The matcher with half the swarm budget of the dataset benchmarks: the simulated robot's
-    odometry always centres the search, and 1,500 + 300 evaluations kept its pose error at
-    4–7 cm in the office world while halving the SLAM time per step (README, bench env)."""
-    base = MatcherConfig.for_optimizer(optimizer)
-    return replace(base, swarm=replace(base.swarm, max_evaluations=1500), refine_evaluations=300)
+from swarmslam_sim.catalog import get_world
 
 
 class SwarmSlamEnv(gym.Env):
@@ -96,8 +86,8 @@ class SwarmSlamEnv(gym.Env):
                  timing_in_info: bool = False):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
-        if optimizer not in ("abc", "pso", "fa"):
-            raise ValueError(f"optimizer must be 'abc', 'pso' or 'fa', got {optimizer!r}")
+        if optimizer not in OPTIMIZERS:
+            raise ValueError(f"optimizer must be one of {', '.join(OPTIMIZERS)}, got {optimizer!r}")
         if len(odometry_noise) != 3 or min(odometry_noise) < 0:
             raise ValueError(f"odometry_noise needs three stds ≥ 0, got {odometry_noise}")
         self.render_mode = render_mode
@@ -116,9 +106,12 @@ class SwarmSlamEnv(gym.Env):
         self.dt = 1.0 / self.lidar.config.rate_hz
         self.substeps = max(1, math.ceil(self.dt / SUBSTEP - 1e-9))
         lc = self.lidar.config
-        self.slam_config = slam_config or SlamConfig(
-            matcher=tracking_matcher(optimizer), max_points=lc.beams,
-            max_nodes=4000, max_edges=16000, max_scans=20000)
+        # The simulator's preset (runtime.config.simulated) sized for this LiDAR, in the
+        # lockstep schedule: one tick per env step, the whole back end each tick, so that a
+        # seed gives the same episode bit for bit.
+        config = slam_config or simulated(beams=lc.beams, min_range=lc.min_range,
+                                          max_range=lc.max_range).with_optimizer(optimizer)
+        self.slam_config = override(config, {"runtime.schedule": "lockstep"})
         self.map = world_grid(self.world, map_resolution)
         self.mappable_cells = int(self.map.region.sum())
         self.cell_area = map_resolution**2
@@ -146,17 +139,15 @@ class SwarmSlamEnv(gym.Env):
         start[2] = rng.uniform(-math.pi, math.pi)
         self.space = build_space(self.world)
         self.robot = Robot(self.space, start, self.robot_radius)
-        # The robot's own runtime class, in its lockstep schedule: one tick per env step, the
-        # whole back end each tick, so that a seed gives the same episode bit for bit.
-        self.runtime = (SlamRuntime(self.slam_config, RuntimeConfig(schedule="lockstep"),
-                                    seed=int(rng.integers(2**31)), initial_pose=start)
-                        if self.use_slam else None)
+        self.runtime = (SlamRuntime(self.slam_config, seed=int(rng.integers(2**31)),
+                                    initial_pose=start) if self.use_slam else None)
         self.slam = None if self.runtime is None else self.runtime.slam
         self.true_pose = start.copy()
         self.odometry = start.copy()
         self.estimated_pose = start.copy()
         self.map.logodds[:] = 0.0
-        self._mapped_poses = np.zeros((self.slam_config.max_nodes, 3))  # node poses the map shows
+        self._mapped_poses = np.zeros((self.slam_config.capacity.max_nodes, 3))  # node poses the map shows
+        self._seen_revision = 0  # the SLAM's revision when the map was last checked
         self.known_cells = 0
         self.collisions = 0
         self.in_contact = False
@@ -224,9 +215,11 @@ class SwarmSlamEnv(gym.Env):
             self.slam_ms = 1e3 * (time.perf_counter() - t0)
             self.estimated_pose = result.pose
             if result.node_added:
-                self._mapped_poses[self.slam.keyframe] = self.slam.graph.poses[self.slam.keyframe]
-            if result.loop_closed and self._graph_moved():
-                self._rebuild_map()
+                self._mapped_poses[self.slam.keyframe] = self.slam.node_pose(self.slam.keyframe)
+            if self.slam.revision != self._seen_revision:  # a loop closure moved the nodes
+                self._seen_revision = self.slam.revision
+                if self._graph_moved():
+                    self._rebuild_map()
         elif self.slam is None:
             self.estimated_pose = self.true_pose.copy()
         self.true_path.append(self.true_pose.copy())
@@ -238,18 +231,18 @@ class SwarmSlamEnv(gym.Env):
     def _graph_moved(self) -> bool:
         """Did the optimisation move a node by more than half a map cell (at the LiDAR's
         reach, for turns) since the map was drawn?"""
-        n = self.slam.graph.n_nodes
-        d = self.slam.graph.poses[:n] - self._mapped_poses[:n]
+        poses = self.slam.node_poses()
+        d = poses - self._mapped_poses[: len(poses)]
         shift = np.max(np.hypot(d[:, 0], d[:, 1]) + np.abs(wrap_angle(d[:, 2])) * self.lidar.config.max_range)
         return shift > 0.5 * self.map.resolution
 
     def _rebuild_map(self):
         """A loop closed and the graph moved: redraw the map from the optimised node poses."""
         slam, grid = self.slam, self.map
-        self._mapped_poses[: slam.graph.n_nodes] = slam.graph.poses[: slam.graph.n_nodes]
+        poses = slam.node_poses()
+        self._mapped_poses[: len(poses)] = poses
         grid.logodds[:] = 0.0
-        for k in range(slam.graph.n_nodes):
-            grid.integrate(slam.graph.poses[k], slam.node_points[k, : slam.node_counts[k]], self.lidar.config.max_range)
+        slam.draw_map(grid, self.lidar.config.max_range)
         self.known_cells = int(np.count_nonzero((grid.logodds != 0) & (grid.region != 0)))
 
     def _odometry_motion(self, motion):
@@ -290,8 +283,8 @@ class SwarmSlamEnv(gym.Env):
             "collisions": self.collisions,
             "in_contact": self.in_contact,
             "odometry": self.odometry.copy(),
-            "slam_nodes": 0 if slam is None else slam.graph.n_nodes,
-            "loop_closures": 0 if slam is None else slam.loops.accepted,
+            "slam_nodes": 0 if slam is None else slam.n_nodes,
+            "loop_closures": 0 if slam is None else slam.loops_closed,
             "slam_status": "off" if slam is None else self.runtime.status,
         }
         if self.timing_in_info:

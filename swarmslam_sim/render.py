@@ -1,7 +1,7 @@
 """Frames of the environment: the SLAM map, the true walls, both trajectories, the scan.
 
 ``rgb_array`` frames are plain numpy (uint8 H×W×3, drawn with the runtime's
-:class:`~runtime.png.Canvas`); ``human`` shows them in a pygame window (the optional ``human``
+:class:`~swarmslam_sim.canvas.Canvas`); ``human`` shows them in a pygame window (the optional ``human``
 extra: ``pip install swarmslam[human]``).
 """
 
@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from runtime.occupancy_grid import OccupancyGrid
-from runtime.png import Canvas
 from runtime.pose import transform_points
+from swarmslam_sim.canvas import Canvas
 
 PIXELS_PER_METRE = 40
 WALL = (40, 40, 40)

@@ -1,4 +1,5 @@
-"""Worlds: static walls as line segments, read from ``.world`` files or made by generators.
+"""Worlds: static walls as line segments, read from ``.world`` files (the generators are in
+:mod:`swarmslam_sim.generators`; a world by name: :func:`swarmslam_sim.catalog.get_world`).
 
 The ``.world`` format — one statement per line, metres and degrees, ``#`` starts a comment::
 
@@ -18,12 +19,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
 from runtime.text_records import DataFormatError, parse_numbers, records
+from runtime.writers import write_text_atomic
 
 
 @dataclass(frozen=True)
@@ -118,34 +119,7 @@ def load_world(path) -> World:
 
 def save_world(world: World, path) -> None:
     """Write ``world`` as a ``.world`` file (every segment as a two-point wall)."""
-    from runtime.writers import write_text_atomic
-
     lines = [f"name {world.name}", "bounds " + " ".join(f"{v:.6g}" for v in world.bounds),
              f"start {world.start[0]:.6g} {world.start[1]:.6g} {math.degrees(world.start[2]):.6g}"]
     lines += ["wall " + " ".join(f"{v:.9g}" for v in s) for s in world.segments]
     write_text_atomic(path, "\n".join(lines) + "\n")
-
-
-def builtin_worlds() -> list[str]:
-    return sorted(p.name[: -len(".world")] for p in resources.files("worlds").iterdir()
-                  if p.name.endswith(".world"))
-
-
-def get_world(spec, seed: int = 0) -> World:
-    """A world from a name: a built-in world (``office``), a generator (``rooms``, ``maze``,
-    ``clutter``, seeded by ``seed``), or a path to a ``.world`` file. A World passes through."""
-    if isinstance(spec, World):
-        return spec
-    from swarmslam_sim.generators import GENERATORS
-
-    spec = str(spec)
-    if spec in GENERATORS:
-        return GENERATORS[spec](seed)
-    packaged = resources.files("worlds") / f"{spec}.world"
-    if packaged.is_file():
-        with resources.as_file(packaged) as p:
-            return load_world(p)
-    if spec.endswith(".world") or Path(spec).exists():
-        return load_world(spec)
-    raise ValueError(f"unknown world {spec!r}: not a built-in ({', '.join(builtin_worlds())}), "
-                     f"a generator ({', '.join(GENERATORS)}), or a .world file")

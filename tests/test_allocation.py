@@ -13,7 +13,7 @@ import numpy as np
 from runtime.optimizers import SwarmConfig
 from runtime.scan import PointScan
 from runtime.scan_matcher import N_OUT, MatcherConfig, ScanMatcher
-from runtime.synthetic import pose_after, room_world, scan_at
+from runtime.warm_up import pose_after, room_world, scan_at
 
 ANGLES = np.deg2rad(np.arange(-180, 180, 1.0))
 

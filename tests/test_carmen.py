@@ -3,7 +3,7 @@ import gzip
 import numpy as np
 import pytest
 
-from runtime.carmen import CarmenFormatError, read_carmen
+from scripts.carmen import CarmenFormatError, read_carmen
 
 FLASER = "FLASER 4 1.0 2.0 50.0 0.5 0.1 0.2 0.3 0.1 0.2 0.3 {t} host {t}\n"
 ODOM = "ODOM 1.0 2.0 0.5 0.0 0.0 0.0 {t} host {t}\n"

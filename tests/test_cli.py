@@ -5,9 +5,9 @@ import json
 
 import numpy as np
 
-from runtime.carmen import flaser_angles
-from runtime.synthetic import loop_path
-from runtime.synthetic import room_world, scan_at
+from scripts.carmen import flaser_angles
+from runtime.warm_up import loop_path
+from runtime.warm_up import room_world, scan_at
 from scripts.cli import main
 
 

@@ -183,7 +183,7 @@ def test_faults_parse_and_refuse_unknown_ones():
 
 def test_emulator_replays_a_carmen_log(tmp_path):
     """Each rotation shows the next laser record; beams outside its field of view are empty."""
-    from hardware.sources import CarmenSource
+    from scripts.emulator_sources import CarmenSource
 
     ranges = " ".join(f"{1.0 + 0.01 * k:.2f}" for k in range(181))  # 181 beams over 180°
     log = tmp_path / "tiny.log"

@@ -10,9 +10,9 @@ import numpy as np
 
 from hardware.emulator import VirtualRPLidar
 from runtime.pose import between
-from runtime.tum import read_tum
+from scripts.tum import read_tum
 from scripts.cli import main
-from swarmslam_sim.scanner_source import WorldSource
+from scripts.emulator_sources import WorldSource
 
 
 def test_live_slam_from_the_emulator_tracks_the_true_pose(tmp_path, capsys):

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from runtime import writers
-from runtime.png import Canvas, encode_png
-from runtime.tum import read_tum, write_tum
+from scripts.png import encode_png
+from swarmslam_sim.canvas import Canvas
+from scripts.tum import read_tum, write_tum
 
 
 def decode_png(data: bytes) -> np.ndarray:

@@ -20,7 +20,7 @@ from runtime.scan import PointScan
 from runtime.scan_matcher import MatcherConfig
 from runtime.session import SessionError, read_session, save_session
 from runtime.slam import GraphSlam, SlamConfig
-from runtime.synthetic import LoopDrive
+from runtime.warm_up import LoopDrive
 
 LOCKSTEP = RuntimeConfig(schedule="lockstep")
 # A small swarm budget keeps the long runs quick; the code paths are the same at any budget.

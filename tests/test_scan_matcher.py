@@ -6,7 +6,7 @@ import pytest
 from runtime.pose import between
 from runtime.scan import PointScan
 from runtime.scan_matcher import MatcherConfig, ScanMatcher
-from runtime.synthetic import pose_after, room_world, scan_at
+from runtime.warm_up import pose_after, room_world, scan_at
 
 ANGLES = np.deg2rad(np.arange(-180, 180, 1.0))  # a 360° RPLidar-like scanner
 START = np.array([3.0, 3.0, 0.3])

@@ -6,14 +6,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from runtime.map_io import read_pgm, write_map
-from runtime.metrics import kummerle
+from scripts.map_io import read_pgm, write_map
+from scripts.metrics import kummerle
 from runtime.pose import between, compose, wrap_angle
 from runtime.pose_graph import LOOP
-from runtime.relations import Relations, RelationsFormatError, read_relations
+from scripts.relations import Relations, RelationsFormatError, read_relations
 from runtime.scan import PointScan
 from runtime.slam import GraphSlam, SlamConfig
-from runtime.synthetic import loop_path, room_world, scan_at
+from runtime.warm_up import loop_path, room_world, scan_at
 
 ANGLES = np.deg2rad(np.arange(-180, 180, 1.0))
 
@@ -140,7 +140,7 @@ DATA = Path(os.environ.get("SWARMSLAM_DATASETS", Path(__file__).parents[1] / "..
 @pytest.mark.skipif(not (DATA / "radish" / "intel.clf.gz").exists(),
                     reason=f"integration data absent: {DATA / 'radish' / 'intel.clf.gz'}")
 def test_intel_first_scans_stay_bounded():
-    from runtime.replay import replay
+    from scripts.replay import replay
 
     m = replay(DATA / "radish" / "intel.clf.gz", DATA / "radish" / "intel.relations", limit=400)
     assert m["relations_used"] >= 20

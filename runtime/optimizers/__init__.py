@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from runtime.config import OPTIMIZERS, SwarmConfig
 from runtime.optimizers import bee_colony, firefly, pso
 from runtime.optimizers.workspace import (
     BEST_VAL,
@@ -24,9 +25,7 @@ from runtime.optimizers.workspace import (
 )
 from runtime.rng import seed_state
 
-PSO, ABC, FA = 0, 1, 2
-KINDS = {"pso": PSO, "abc": ABC, "fa": FA}
-NAMES = {v: k for k, v in KINDS.items()}
+PSO, ABC, FA = (OPTIMIZERS.index(name) for name in ("pso", "abc", "fa"))
 
 # Table 1: swarm / colony / fireflies.
 DEFAULT_MEMBERS = {PSO: 50, ABC: 20, FA: 20}
@@ -67,42 +66,21 @@ def tell(kind, ws, m):
     return ws.scal[DONE] != 0.0
 
 
-@dataclass(frozen=True)
-class SwarmConfig:
-    """Which optimizer, its parameters (defaults: the paper's Table 1) and halting rules."""
-
-    optimizer: str = "abc"
-    members: int | None = None  # PSO particles / ABC colony (2 × food sources) / fireflies
-    params: tuple[float, ...] | None = None
-    max_iterations: int = 1000
-    stagnation_iterations: int = 50
-    stagnation_tol: float = 1e-6
-    target_value: float = 1e-6
-    max_evaluations: int = 0  # 0: no budget (the paper's rules only)
-
-    @property
-    def kind(self) -> int:
-        try:
-            return KINDS[self.optimizer]
-        except KeyError:
-            raise ValueError(
-                f"unknown optimizer {self.optimizer!r}; choose one of {sorted(KINDS)}"
-            ) from None
-
-    def workspace(self, dim: int) -> SwarmWorkspace:
-        kind = self.kind
-        module = _MODULES[kind]
-        members = self.members if self.members is not None else DEFAULT_MEMBERS[kind]
-        if kind == ABC:
-            members //= 2  # employed bees = onlookers = food sources
-        params = module.DEFAULTS if self.params is None else tuple(self.params)
-        if len(params) != module.N_PARAMS:
-            raise ValueError(
-                f"{self.optimizer} takes {module.N_PARAMS} parameters, got {len(params)}"
-            )
-        ws = make_workspace(members, dim, module.N_PARAMS)
-        ws.params[:] = params
-        return ws
+def swarm_workspace(config: SwarmConfig, dim: int) -> SwarmWorkspace:
+    """The buffers of ``config``'s swarm for a ``dim``-dimensional search, allocated once."""
+    kind = config.kind
+    module = _MODULES[kind]
+    members = config.members if config.members is not None else DEFAULT_MEMBERS[kind]
+    if kind == ABC:
+        members //= 2  # employed bees = onlookers = food sources
+    params = module.DEFAULTS if config.params is None else tuple(config.params)
+    if len(params) != module.N_PARAMS:
+        raise ValueError(
+            f"{config.optimizer} takes {module.N_PARAMS} parameters, got {len(params)}"
+        )
+    ws = make_workspace(members, dim, module.N_PARAMS)
+    ws.params[:] = params
+    return ws
 
 
 @dataclass(frozen=True)
@@ -125,7 +103,7 @@ class SwarmOptimizer:
         self.config = config or SwarmConfig()
         self.kind = self.config.kind
         self.dim = dim
-        self.ws = self.config.workspace(dim)
+        self.ws = swarm_workspace(self.config, dim)
         seed_state(seed, self.ws.rng)
 
     def prepare(self, lo, hi, seed: int | None = None) -> None:

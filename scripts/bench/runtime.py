@@ -10,7 +10,7 @@ Three passes over ``radish/intel.clf.gz`` (one core, budgeted schedule unless sa
    ticks at 10 Hz on the wall clock, for ``realtime_minutes`` of the log (45 min in all).
 
 ``--soak MINUTES`` instead drives the runtime for that long on simulated scans
-(:class:`runtime.synthetic.LoopDrive`), sampling RSS and traced memory each minute.
+(:class:`runtime.warm_up.LoopDrive`), sampling RSS and traced memory each minute.
 Targets (issue 6): 0 misses, p99 ≤ 20 ms, RSS growth ≤ 1 MB, 0 traced bytes per tick.
 """
 
@@ -20,20 +20,20 @@ import gc
 import threading
 import time
 import tracemalloc
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from runtime.carmen import read_carmen
-from runtime.datasets import require
-from runtime.fixed_rate import RuntimeConfig, SlamRuntime
-from runtime.metrics import kummerle
-from runtime.progress import Progress
-from runtime.relations import read_relations
-from runtime.replay import replay, robot_frame_scan, slam_config
+from scripts.carmen import read_carmen
+from scripts.datasets import require
+from runtime.config import SlamConfig, override
+from runtime.fixed_rate import SlamRuntime
+from scripts.metrics import kummerle
+from scripts.progress import Progress
+from scripts.relations import read_relations
+from scripts.replay import replay, robot_frame_scan
 from runtime.scan import PointScan
-from runtime.synthetic import LoopDrive
+from runtime.warm_up import LoopDrive
 from runtime.writers import write_json_atomic
 
 WARM_UP = 1000  # scans before RSS and traced memory are taken as the baseline
@@ -60,8 +60,9 @@ def robot_frame_scans(log):
     return out
 
 
-def max_speed(scans, relations, config, runtime_config, echo) -> dict:
-    runtime = SlamRuntime(config, runtime_config)
+def max_speed(scans, relations, config, echo) -> dict:
+    runtime = SlamRuntime(config)
+    runtime_config = config.runtime
     warm = runtime.warm_up()
     latency = np.zeros(len(scans))
     rss_after_warm_up = 0
@@ -75,7 +76,7 @@ def max_speed(scans, relations, config, runtime_config, echo) -> dict:
         latency[k] = clock() - t0
         if k == WARM_UP:
             rss_after_warm_up = rss_kib()[0]
-        progress.update(note=f"nodes {runtime.slam.graph.n_nodes}")
+        progress.update(note=f"nodes {runtime.slam.n_nodes}")
     runtime.drain()
     progress.close()
     wall = clock() - start
@@ -101,10 +102,10 @@ def max_speed(scans, relations, config, runtime_config, echo) -> dict:
     return out
 
 
-def traced(scans, config, runtime_config, ticks) -> dict:
+def traced(scans, config, ticks) -> dict:
     """Traced memory growth per tick after warm-up, in two consecutive windows (tracemalloc
     slows Python: run apart from the timed pass). A per-tick leak grows alike in both."""
-    runtime = SlamRuntime(config, runtime_config)
+    runtime = SlamRuntime(config)
 
     def run(chunk):
         for pts, n, odometry, stamp in chunk:
@@ -124,14 +125,14 @@ def traced(scans, config, runtime_config, ticks) -> dict:
     windows = [middle - start, end - middle]
     return {"ticks": 2 * half, "traced_bytes_growth": windows[0] + windows[1],
             "traced_bytes_per_tick": (windows[0] + windows[1]) / max(2 * half, 1),
-            "windows_bytes": windows, "nodes": int(runtime.slam.graph.n_nodes)}
+            "windows_bytes": windows, "nodes": int(runtime.slam.n_nodes)}
 
 
-def recorded_rate(scans, config, runtime_config, minutes: float, echo) -> dict:
+def recorded_rate(scans, config, minutes: float, echo) -> dict:
     """Scans handed over at their logged times by a producer thread; ticks on the wall clock."""
     t_first = scans[0][3]
     chosen = [s for s in scans if s[3] - t_first <= 60.0 * minutes]
-    runtime = SlamRuntime(config, runtime_config)
+    runtime = SlamRuntime(config)
     runtime.warm_up()
     stop = threading.Event()
     latencies = []
@@ -178,17 +179,18 @@ def bench_runtime(data_dir: Path, optimizer="abc", realtime_minutes=2.0, traced_
         log.lasers = log.lasers[:limit]
     scans = robot_frame_scans(log)
     relations = read_relations(rel_path)
-    config = replace(slam_config(optimizer), max_scans=len(scans) + 1)
-    rc = RuntimeConfig(rate_hz=10.0)
+    config = override(SlamConfig(), {"matcher.swarm.optimizer": optimizer,
+                                     "capacity.max_scans": len(scans) + 1})
+    rc = config.runtime
     result = {"benchmark": "runtime", "log": str(log_path), "optimizer": optimizer,
               "runtime_config": {"rate_hz": rc.rate_hz, "tick_budget_s": rc.tick_budget}}
-    result["max_speed"] = max_speed(scans, relations, config, rc, echo)
+    result["max_speed"] = max_speed(scans, relations, config, echo)
     unsliced = replay(log_path, rel_path, optimizer, True, None, limit, label="unsliced")
     result["unsliced"] = {k: unsliced[k] for k in ("eT", "eT_std", "eR_deg", "eR_std",
                                                    "loops_accepted", "latency_ms_p99")}
-    result["traced"] = traced(scans, config, rc, traced_ticks)
+    result["traced"] = traced(scans, config, traced_ticks)
     if realtime_minutes > 0:
-        result["recorded_rate"] = recorded_rate(scans, config, rc, realtime_minutes, echo)
+        result["recorded_rate"] = recorded_rate(scans, config, realtime_minutes, echo)
     echo(format_runtime(result))
     if json_path:
         write_json_atomic(json_path, result)
@@ -227,12 +229,10 @@ def format_runtime(r) -> str:
 
 def bench_soak(minutes: float, json_path=None, echo=print, seed=0) -> dict:
     """The runtime for ``minutes`` of wall time on simulated scans, back to back."""
-    from runtime.slam import SlamConfig
-
     drive = LoopDrive(seed)
-    config = SlamConfig(max_nodes=2000, max_edges=8000, max_scans=1_000_000)
-    rc = RuntimeConfig(rate_hz=10.0)
-    runtime = SlamRuntime(config, rc, seed=seed)
+    config = override(SlamConfig(), {"capacity.max_nodes": 2000, "capacity.max_edges": 8000,
+                                     "capacity.max_scans": 1_000_000})
+    runtime = SlamRuntime(config, seed=seed)
     runtime.warm_up()
     scan = PointScan(len(drive.angles))
     samples = []
@@ -253,7 +253,7 @@ def bench_soak(minutes: float, json_path=None, echo=print, seed=0) -> dict:
                 gc.collect()
                 samples.append({"tick": k, "rss_mib": rss_kib()[0] / 1024,
                                 "traced_kib": tracemalloc.get_traced_memory()[0] / 1024,
-                                "nodes": int(runtime.slam.graph.n_nodes)})
+                                "nodes": int(runtime.slam.n_nodes)})
                 echo(f"soak: {samples[-1]}")
                 next_sample += 60.0
     finally:

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from runtime.occupancy_grid import OccupancyGrid
-from runtime.png import write_png
+from scripts.png import write_png
 from runtime.writers import write_bytes_atomic, write_text_atomic
 
 OCCUPIED_THRESH = 0.65

@@ -12,38 +12,43 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import replace
 from pathlib import Path
 
 from hardware.driver import RPLidar
 from hardware.models import model as get_model
-from runtime.fixed_rate import RuntimeConfig, SlamRuntime
-from runtime.slam import SlamConfig
+from runtime.config import SlamConfig, override, preset
+from runtime.fixed_rate import SlamRuntime
 from runtime.writers import write_json_atomic
+from scripts.outputs import write_results
 
 
-def slam_config_for(model_name: str) -> SlamConfig:
-    """Stored scans sized for the model's samples per rotation (express mode), with margin."""
-    m = get_model(model_name)
-    per_rotation = int(m.samples_per_second / m.scan_hz * 1.25) + 64
-    return replace(SlamConfig(), max_points=max(per_rotation, 400), map_max_range=m.max_range)
+def slam_config_for(model_name: str, rate_hz: float | None = None) -> SlamConfig:
+    """The model's preset (stored scans sized for its samples per rotation, its range), at
+    ``rate_hz`` ticks per second if given."""
+    config = preset(f"rplidar-{get_model(model_name).name}")
+    return config if rate_hz is None else override(config, {"runtime.rate_hz": rate_hz})
 
 
 def run_live(port: str, model: str = "a1", mode: str = "express", out_dir="swarmslam-live",
-             rate_hz: float = 10.0, seconds: float | None = None, resume=None, echo=print,
-             stop: threading.Event | None = None) -> dict:
+             rate_hz: float | None = None, seconds: float | None = None, resume=None,
+             echo=print, stop: threading.Event | None = None,
+             config: SlamConfig | None = None) -> dict:
+    """``config``: the whole configuration (default: the model's preset); ``rate_hz``
+    overrides its tick rate."""
     out = Path(out_dir)
     if resume:
         runtime = SlamRuntime.resume(resume)
-        echo(f"resumed {resume}: {runtime.slam.graph.n_nodes} nodes")
+        echo(f"resumed {resume}: {runtime.slam.n_nodes} nodes")
     else:
-        runtime = SlamRuntime(slam_config_for(model), RuntimeConfig(rate_hz=rate_hz))
-    m = get_model(model)
+        if config is None:
+            config = slam_config_for(model, rate_hz)
+        elif rate_hz is not None:
+            config = override(config, {"runtime.rate_hz": rate_hz})
+        runtime = SlamRuntime(config)
     inbox = runtime.inbox
 
     def on_scan(angles, ranges, stamp):
-        inbox.put_ranges(angles=angles, ranges=ranges, stamp=stamp, min_range=0.05,
-                         max_range=m.max_range)
+        inbox.put_ranges(angles=angles, ranges=ranges, stamp=stamp)
 
     lidar = RPLidar(port, model, on_scan=on_scan)
     lidar.connect()
@@ -84,8 +89,8 @@ def run_live(port: str, model: str = "a1", mode: str = "express", out_dir="swarm
 def save_outputs(runtime: SlamRuntime, out: Path, scanner: dict, echo=print) -> dict:
     runtime.drain()
     summary = {"runtime": runtime.report(), "scanner": scanner}
-    if runtime.slam.graph.n_nodes:
-        runtime.write_results(out)
+    if runtime.slam.n_nodes:
+        write_results(runtime.slam, out)
         runtime.save(out / "session.npz")
     write_json_atomic(out / "summary.json", summary)
     echo(f"wrote {out}/: map.pgm map.yaml map.png trajectory.tum graph.g2o session.npz summary.json")

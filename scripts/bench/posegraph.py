@@ -9,8 +9,8 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from runtime.datasets import require
-from runtime.g2o import read_g2o
+from scripts.datasets import require
+from scripts.g2o import read_g2o
 from runtime.graph_optimizer import GaussNewton
 from runtime.writers import write_json_atomic
 

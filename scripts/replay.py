@@ -7,25 +7,33 @@ trajectory of every scan (TUM), the pose graph (g2o) and ``metrics.json``.
 from __future__ import annotations
 
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from runtime.carmen import read_carmen
-from runtime.fixed_rate import RuntimeConfig, SlamRuntime
-from runtime.metrics import kummerle
+from scripts.carmen import read_carmen
+from runtime.config import SlamConfig, override
+from runtime.fixed_rate import SlamRuntime
+from scripts.metrics import kummerle
 from runtime.pose import compose
-from runtime.progress import Progress
-from runtime.relations import read_relations
+from scripts.progress import Progress
+from scripts.relations import read_relations
 from runtime.scan import PointScan
-from runtime.scan_matcher import MatcherConfig
-from runtime.slam import SlamConfig
 from runtime.writers import write_json_atomic
+from scripts.outputs import write_results
 
 
-def slam_config(optimizer: str = "abc", **overrides) -> SlamConfig:
-    return SlamConfig(matcher=MatcherConfig.for_optimizer(optimizer), **overrides)
+def replay_config(config: SlamConfig | None = None, optimizer: str | None = None,
+                  scans: int = 0, schedule: str = "lockstep") -> SlamConfig:
+    """``config`` (default: the defaults) for a replay: ``optimizer`` if given, the trajectory
+    sized for the log's ``scans``, and the runtime's ``schedule`` (lockstep: the whole back
+    end every tick, bit for bit repeatable)."""
+    config = config or SlamConfig()
+    changes = {"capacity.max_scans": max(config.capacity.max_scans, scans),
+               "runtime.schedule": schedule}
+    if optimizer is not None:
+        changes["matcher.swarm.optimizer"] = optimizer
+    return override(config, changes)
 
 
 def robot_frame_scan(record, scan: PointScan) -> PointScan:
@@ -38,18 +46,17 @@ def robot_frame_scan(record, scan: PointScan) -> PointScan:
     return scan
 
 
-def replay(log_path, relations_path=None, optimizer="abc", odometry=True, out_dir=None,
-           limit=None, seed=0, config: SlamConfig | None = None, label="replay",
-           echo=print, runtime_config: RuntimeConfig | None = None) -> dict:
+def replay(log_path, relations_path=None, optimizer: str | None = None, odometry=True,
+           out_dir=None, limit=None, seed=0, config: SlamConfig | None = None, label="replay",
+           echo=print, schedule: str = "lockstep") -> dict:
     """Every scan of the log through :class:`SlamRuntime`, one tick each, as fast as it goes.
     The default schedule is lockstep (the whole back end every tick, as ``GraphSlam.step``);
-    a ``budgeted`` runtime config slices it as on a robot."""
+    ``budgeted`` slices it as on a robot. ``optimizer`` overrides ``config``'s."""
     log = read_carmen(log_path)
     relations = read_relations(relations_path) if relations_path else None
     lasers = log.lasers[:limit] if limit else log.lasers
-    config = config or slam_config(optimizer)
-    config = replace(config, max_scans=max(config.max_scans, len(lasers)))
-    runtime = SlamRuntime(config, runtime_config or RuntimeConfig(schedule="lockstep"), seed=seed)
+    config = replay_config(config, optimizer, len(lasers), schedule)
+    runtime = SlamRuntime(config, seed=seed)
     slam = runtime.slam
     scan = PointScan(max(len(r.ranges) for r in lasers))
     latencies = np.zeros(len(lasers))
@@ -60,7 +67,7 @@ def replay(log_path, relations_path=None, optimizer="abc", odometry=True, out_di
         t0 = time.perf_counter()
         runtime.process(scan, record.odometry if odometry else None, record.timestamp)
         latencies[k] = time.perf_counter() - t0
-        progress.update(note=f"nodes {slam.graph.n_nodes} loops {slam.loops.accepted}")
+        progress.update(note=f"nodes {slam.n_nodes} loops {slam.loops_closed}")
     runtime.drain()  # deferred loop searches finish, as on the robot's next ticks
     progress.close()
     wall = time.perf_counter() - start
@@ -73,10 +80,10 @@ def replay(log_path, relations_path=None, optimizer="abc", odometry=True, out_di
         "scans": len(lasers),
         "nodes": int(slam.graph.n_nodes),
         "edges": int(slam.graph.n_edges),
-        "loops_accepted": slam.loops.accepted,
-        "loops_rejected_match": slam.loops.rejected_match,
-        "loops_rejected_consistency": slam.loops.rejected_consistency,
-        "matches_recovered": slam.lost_matches,
+        "loops_accepted": slam.loops_closed,
+        "loops_rejected_match": slam.back_end.loops.rejected_match,
+        "loops_rejected_consistency": slam.back_end.loops.rejected_consistency,
+        "matches_recovered": slam.front_end.lost_matches,
         "wall_seconds": wall,
         "data_seconds": data_seconds,
         "real_time_factor": data_seconds / wall if wall > 0 else float("inf"),
@@ -88,6 +95,6 @@ def replay(log_path, relations_path=None, optimizer="abc", odometry=True, out_di
     if relations is not None:
         metrics.update(kummerle(stamps, poses, relations))
     if out_dir is not None:
-        runtime.write_results(out_dir)
+        write_results(slam, out_dir)
         write_json_atomic(Path(out_dir) / "metrics.json", metrics)
     return metrics

@@ -1,4 +1,8 @@
-"""Synthetic scans of a line-segment world, for tests, demos and soak runs without a simulator.
+"""The synthetic drive the runtime warms up on (:meth:`runtime.fixed_rate.SlamRuntime.warm_up`):
+scans of a line-segment world along a loop, so that every compiled path — matching, node
+insertion, loop closure, optimisation — runs once before the first real tick. It is part of the
+core because a robot must warm up without a simulator or a log; tests, demos and soak runs use
+it too.
 
 A deliberately small ray caster in numpy (exact ray/segment intersection); the simulator in
 ``swarmslam_sim`` has the fast, physical one. Worlds come from seeded generators, so every

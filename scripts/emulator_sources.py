@@ -1,4 +1,7 @@
-"""A simulated world as the emulated scanner's view: a robot explores it (frontier explorer on
+"""Sources for the emulated scanner that come from other packages: a recorded CARMEN log
+(:class:`CarmenSource`) and a simulated world (:class:`WorldSource`).
+
+A simulated world as the emulated scanner's view: a robot explores it (frontier explorer on
 the true pose, no SLAM), one env step per scanner rotation, and the scanner's beams are cast
 from the robot's true pose at exactly the angles the emulator streams.
 
@@ -7,12 +10,14 @@ The true pose of every rotation is kept (``truth``), so a client's estimate can 
 
 from __future__ import annotations
 
+import math
 import threading
 
 import gymnasium as gym
 import numpy as np
 
 from hardware.sources import robot_angles
+from scripts.carmen import read_carmen
 from swarmslam_sim.exploration import FrontierExplorer
 from swarmslam_sim.raycast import cast_scan
 
@@ -69,3 +74,35 @@ class WorldSource:
         valid = np.isfinite(r) & (r < lidar.config.max_range) & (r > lidar.config.min_range)
         noisy = r + self.range_noise * self.rng.standard_normal(r.shape[0])
         return np.where(valid, np.maximum(noisy, 0.0) * 1000.0, 0.0)
+
+
+class CarmenSource:
+    """A recorded CARMEN log replayed rotation by rotation: each rotation shows the next laser
+    record, each angle its nearest beam (none outside the record's field of view)."""
+
+    def __init__(self, path, loop: bool = True):
+        self.log = read_carmen(path)
+        if not self.log.lasers:
+            raise ValueError(f"{path}: no laser records to replay")
+        self.loop = loop
+        self.index = 0
+
+    def reset(self) -> None:
+        pass  # a restarted scan continues the log, as time goes on for a real scanner
+
+    def next_rotation(self) -> None:
+        self.index += 1
+        if self.index >= len(self.log.lasers):
+            self.index = 0 if self.loop else len(self.log.lasers) - 1
+
+    def distances(self, angles_deg) -> np.ndarray:
+        record = self.log.lasers[self.index]
+        beams = np.asarray(record.angles, dtype=np.float64)
+        ranges = np.asarray(record.ranges, dtype=np.float64)
+        want = robot_angles(angles_deg)
+        want = (want + math.pi) % (2 * math.pi) - math.pi
+        k = np.abs(want[:, None] - beams[None, :]).argmin(axis=1)  # the nearest beam
+        spacing = np.max(np.abs(np.diff(beams))) if len(beams) > 1 else math.pi
+        r = ranges[k]
+        ok = (np.abs(beams[k] - want) <= spacing) & (r > 0) & (r < record.max_range)
+        return np.where(ok, r * 1000.0, 0.0)

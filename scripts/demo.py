@@ -16,19 +16,27 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-from runtime.map_io import write_map
-from runtime.png import write_png
-from runtime.progress import Progress
-from runtime.tum import write_tum
+from scripts.map_io import write_map
+from scripts.png import write_png
+from scripts.progress import Progress
+from scripts.tum import write_tum
+from runtime.config import SlamConfig
 from runtime.writers import write_json_atomic
 from swarmslam_sim.exploration import FrontierExplorer
 
 
-def run_exploration_demo(out_dir, world: str = "office", optimizer: str = "abc", seed: int = 0,
-                         max_steps: int = 1500, coverage_goal: float = 0.9, echo=print) -> dict:
-    env = gym.make("swarmslam_sim:SwarmSlam-v0", world=world, optimizer=optimizer,
-                   coverage_goal=coverage_goal, render_mode="rgb_array", max_episode_steps=max_steps)
+def run_exploration_demo(out_dir, world: str = "office", optimizer: str | None = None,
+                         seed: int = 0, max_steps: int = 1500, coverage_goal: float = 0.9,
+                         echo=print, config: SlamConfig | None = None) -> dict:
+    """``config``: the SLAM's configuration (default: the simulator's preset for the LiDAR);
+    ``optimizer`` overrides its swarm method."""
+    if config is not None and optimizer is not None:
+        config = config.with_optimizer(optimizer)
+    env = gym.make("swarmslam_sim:SwarmSlam-v0", world=world, optimizer=optimizer or "abc",
+                   coverage_goal=coverage_goal, render_mode="rgb_array",
+                   max_episode_steps=max_steps, slam_config=config)
     u = env.unwrapped
+    optimizer = u.slam_config.matcher.swarm.optimizer
     t0 = time.perf_counter()
     obs, info = env.reset(seed=seed)
     echo(f"world {u.world.name}: {u.mappable_cells * u.cell_area:.0f} m² to map; "

@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.carmen import read_carmen
-from runtime.datasets import require
-from runtime.icp import icp
-from runtime.metrics import is_failure, pair_errors, relative_errors
+from scripts.carmen import read_carmen
+from scripts.datasets import require
+from scripts.icp import icp
+from scripts.metrics import is_failure, pair_errors, relative_errors
 from runtime.pose import between
-from runtime.progress import Progress
+from scripts.progress import Progress
 from runtime.scan import PointScan
 from runtime.scan_matcher import MatcherConfig, ScanMatcher
 from runtime.writers import write_json_atomic

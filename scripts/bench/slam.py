@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from runtime.datasets import require
-from runtime.replay import replay
+from scripts.datasets import require
+from scripts.replay import replay
 from runtime.writers import write_json_atomic
 
 LOGS = {"intel": ("intel.clf.gz", "intel.relations"), "aces": ("aces.clf.gz", "aces.relations")}
