@@ -163,6 +163,14 @@ class BackEnd:
         self.searched += 1
 
     # ------------------------------------------------------------------ Alg. 7's steps
+    def seek_loop_closure(self, node: int) -> bool:
+        """Alg. 7 for ``node`` now, through the same slices (with any other pending work);
+        True if a closure was kept."""
+        revision = self.revision
+        self.enqueue(node)
+        self.work(None, None)
+        return self.revision != revision
+
     def loop_candidates(self, node: int) -> list[int]:
         """Steps 1–2: nearby nodes inside the 95% ellipse, closest first."""
         return self.loops.candidates(self.graph, self.nodes.cov, node)

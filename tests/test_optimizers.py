@@ -111,8 +111,8 @@ def test_table1_defaults():
 
 
 def test_bad_configuration_is_named():
-    with pytest.raises(ValueError, match="unknown optimizer 'gwo'"):
-        SwarmOptimizer(SwarmConfig(optimizer="gwo"))
+    with pytest.raises(ValueError, match="optimizer: must be one of pso, abc, fa, got 'gwo'"):
+        SwarmConfig(optimizer="gwo")  # refused when the configuration is built
     with pytest.raises(ValueError, match="takes 4 parameters"):
         SwarmOptimizer(SwarmConfig(optimizer="pso", params=(0.7,)))
     opt = SwarmOptimizer(dim=2)

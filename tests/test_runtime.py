@@ -13,19 +13,28 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from runtime.fixed_rate import RuntimeConfig, SlamRuntime
-from runtime.optimizers import SwarmConfig
+from runtime.config import (MatcherConfig, RuntimeConfig, SensorConfig, SlamConfig, SwarmConfig,
+                            override)
+from runtime.fixed_rate import SlamRuntime
 from runtime.pose import between
 from runtime.scan import PointScan
-from runtime.scan_matcher import MatcherConfig
-from runtime.session import SessionError, read_session, save_session
-from runtime.slam import GraphSlam, SlamConfig
+from runtime.session import SessionError, read_session, write_session
+from runtime.slam import GraphSlam
 from runtime.warm_up import LoopDrive
 
-LOCKSTEP = RuntimeConfig(schedule="lockstep")
 # A small swarm budget keeps the long runs quick; the code paths are the same at any budget.
-QUICK = SlamConfig(matcher=MatcherConfig(swarm=SwarmConfig(max_evaluations=400),
+# LoopDrive's scanner reaches 12 m ("no return" reads 12).
+QUICK = SlamConfig(sensor=SensorConfig(max_range=12.0),
+                   matcher=MatcherConfig(swarm=SwarmConfig(max_evaluations=400),
                                          refine_evaluations=100))
+
+
+def with_runtime(config, **fields):
+    """``config`` with a runtime section of these fields (the rest default)."""
+    return replace(config, runtime=RuntimeConfig(**fields))
+
+
+LOCKSTEP = with_runtime(QUICK, schedule="lockstep")
 
 
 def recorded_drive(steps, seed=0):
@@ -51,7 +60,7 @@ def truth_in_map(records):
 
 def test_lockstep_runtime_is_graph_slam_step_scan_by_scan():
     angles, records = recorded_drive(120)
-    runtime = SlamRuntime(QUICK, LOCKSTEP, seed=5)
+    runtime = SlamRuntime(LOCKSTEP, seed=5)
     slam = GraphSlam(QUICK, seed=5)
     scan = PointScan(len(angles))
     for k, (_, odometry, ranges) in enumerate(records):
@@ -60,30 +69,30 @@ def test_lockstep_runtime_is_graph_slam_step_scan_by_scan():
         b = slam.step(scan, odometry, float(k))
         assert np.array_equal(a.pose, b.pose), k
         assert (a.node_added, a.loop_closed) == (b.node_added, b.loop_closed), k
-    assert slam.loops.accepted >= 1
+    assert slam.loops_closed >= 1
     n = slam.graph.n_nodes
     assert np.array_equal(runtime.slam.graph.poses[:n], slam.graph.poses[:n])
 
 
 def test_inbox_keeps_the_newest_scan_and_counts_the_stale_ones():
-    runtime = SlamRuntime(QUICK, LOCKSTEP)
+    runtime = SlamRuntime(LOCKSTEP)
     angles, records = recorded_drive(3)
     for k, (_, odometry, ranges) in enumerate(records):
-        runtime.inbox.put_ranges(ranges, angles, float(k), odometry, 0.05, 12.0)
+        runtime.inbox.put_ranges(angles=angles, ranges=ranges, stamp=float(k), odometry=odometry)
     runtime.tick()
     assert runtime.inbox.stale == 2
-    assert runtime.slam.scan_stamp[0] == 2.0  # the newest one was taken
+    assert runtime.slam.front_end.scan_stamp[0] == 2.0  # the newest one was taken
     assert runtime.tick() is None  # nothing new: an idle tick
     assert runtime.stats.ticks == 2 and runtime.stats.scans == 1
     empty = np.full(len(angles), np.inf)
-    assert not runtime.inbox.put_ranges(empty, angles, 3.0, None, 0.05, 12.0)
+    assert not runtime.inbox.put_ranges(angles=angles, ranges=empty, stamp=3.0, odometry=None)
     assert runtime.inbox.empty == 1 and runtime.tick() is None
 
 
 def test_slow_matcher_defers_back_end_work_which_completes_later():
     angles, records = recorded_drive(240)
-    runtime = SlamRuntime(QUICK, RuntimeConfig(rate_hz=10, tick_budget=0.02), seed=1)
-    align = runtime.slam.matcher.align_into
+    runtime = SlamRuntime(with_runtime(QUICK, rate_hz=10, tick_budget=0.02), seed=1)
+    align = runtime.slam.front_end.matcher.align_into
     slow = {"on": False}
 
     def slow_align(*args):
@@ -91,23 +100,23 @@ def test_slow_matcher_defers_back_end_work_which_completes_later():
             time.sleep(0.12)  # beyond the 0.1 s period
         return align(*args)
 
-    runtime.slam.matcher.align_into = slow_align
+    runtime.slam.front_end.matcher.align_into = slow_align
     feed(runtime, angles, records[:120])
-    searched_before = runtime.back_end.searched
+    searched_before = runtime.slam.back_end.searched
     slow["on"] = True
     feed(runtime, angles, records[120:160], first=120)
     during = runtime.report()
     slow["on"] = False
     feed(runtime, angles, records[160:], first=160)
     idle = 0
-    while runtime.back_end.pending() and idle < 200:  # idle ticks: the back end catches up
+    while runtime.slam.back_end.pending() and idle < 200:  # idle ticks: the back end catches up
         runtime.tick()
         idle += 1
     report = runtime.report()
     assert during["deadline_misses"] >= 40  # every slow tick missed its deadline, counted
     assert during["deferred_ticks"] > 0  # ... and the back end waited for time
     assert during["evaluation_share"] == pytest.approx(0.25)  # the swarm was cut to its floor
-    assert runtime.back_end.searched > searched_before
+    assert runtime.slam.back_end.searched > searched_before
     assert report["loop_searches"]["pending"] == 0  # nothing left behind ...
     assert report["loop_searches"]["done"] == report["loop_searches"]["enqueued"]  # ... or lost
     assert report["loop_searches"]["dropped"] == 0
@@ -119,20 +128,21 @@ def test_slow_matcher_defers_back_end_work_which_completes_later():
 
 def test_budgeted_ticks_stay_near_their_budget_when_the_swarm_must_shrink():
     angles, records = recorded_drive(60)
-    runtime = SlamRuntime(QUICK, RuntimeConfig(tick_budget=0.0005))
+    runtime = SlamRuntime(with_runtime(QUICK, tick_budget=0.0005))
     feed(runtime, angles, records)
     # Half a millisecond cannot hold a full match: the swarm ran at its floor share.
     assert runtime.stats.evaluation_share == pytest.approx(0.25)
-    assert runtime.slam.matcher.settings[8] == 100  # S_MAX_EVALS: a quarter of 400
+    assert runtime.slam.front_end.matcher.settings[8] == 100  # S_MAX_EVALS: a quarter of 400
 
 
 def test_capacities_reached_keep_localising_and_say_so():
     angles, records = recorded_drive(200)
-    config = replace(QUICK, max_nodes=12, max_edges=30, max_scans=150)
-    runtime = SlamRuntime(config, LOCKSTEP)
+    config = override(LOCKSTEP, {"capacity.max_nodes": 12, "capacity.max_edges": 30,
+                                 "capacity.max_scans": 150})
+    runtime = SlamRuntime(config)
     results = feed(runtime, angles, records)
     assert runtime.slam.graph.n_nodes == 12
-    assert runtime.slam.n_scans == 150
+    assert runtime.slam.front_end.n_scans == 150
     assert "capacity reached" in runtime.status
     # the pose is still tracked against the last node after the graph froze
     truth = truth_in_map(records)
@@ -143,10 +153,10 @@ def test_capacities_reached_keep_localising_and_say_so():
 
 def test_a_full_loop_queue_drops_the_oldest_search_and_says_so():
     angles, records = recorded_drive(120)
-    runtime = SlamRuntime(QUICK, RuntimeConfig(loop_queue=2, tick_budget=0.0005,
+    runtime = SlamRuntime(with_runtime(QUICK, loop_queue=2, tick_budget=0.0005,
                                                max_deferred_ticks=1000))
     feed(runtime, angles, records)
-    assert runtime.back_end.dropped > 0
+    assert runtime.slam.back_end.dropped > 0
     assert "loop queue full" in runtime.status
 
 
@@ -158,7 +168,7 @@ RUN_AND_DIE = textwrap.dedent(
     from test_runtime import LOCKSTEP, QUICK, feed, recorded_drive
     from runtime.fixed_rate import SlamRuntime
     angles, records = recorded_drive({steps})
-    runtime = SlamRuntime(QUICK, LOCKSTEP, seed=7)
+    runtime = SlamRuntime(LOCKSTEP, seed=7)
     feed(runtime, angles, records[:{cut}])
     runtime.save({path!r})
     feed(runtime, angles, records[{cut}:{cut} + 5], first={cut})  # work after the save is lost
@@ -178,20 +188,20 @@ def test_save_kill_resume_continues_the_same_run(tmp_path):
     resumed = SlamRuntime.resume(path)
     angles, records = recorded_drive(steps)
     feed(resumed, angles, records[cut:], first=cut)
-    whole = SlamRuntime(QUICK, LOCKSTEP, seed=7)
+    whole = SlamRuntime(LOCKSTEP, seed=7)
     feed(whole, angles, records)
     a, b = resumed.slam.graph, whole.slam.graph
     assert a.n_nodes == b.n_nodes and a.n_edges == b.n_edges
     assert np.array_equal(a.poses[: a.n_nodes], b.poses[: b.n_nodes])
     assert np.array_equal(a.ij[: a.n_edges], b.ij[: b.n_edges])
     assert np.array_equal(resumed.trajectory()[1], whole.trajectory()[1])
-    assert resumed.slam.loops.accepted == whole.slam.loops.accepted >= 1
+    assert resumed.slam.loops_closed == whole.slam.loops_closed >= 1
 
 
 @pytest.fixture(scope="module")
 def saved(tmp_path_factory):
     angles, records = recorded_drive(50)
-    runtime = SlamRuntime(QUICK, LOCKSTEP)
+    runtime = SlamRuntime(LOCKSTEP)
     feed(runtime, angles, records)
     path = tmp_path_factory.mktemp("session") / "good.session"
     runtime.save(path)
@@ -222,15 +232,15 @@ def test_each_save_keeps_the_previous_good_session(saved, tmp_path):
     path = tmp_path / "s.session"
     runtime.save(path)
     first = path.read_bytes()
-    runtime.slam.lost_matches += 1  # any change
+    runtime.slam.front_end.lost_matches += 1  # any change
     runtime.save(path)
     assert (tmp_path / "s.session.prev").read_bytes() == first
     # The current file is damaged (say, by a card fault): refused, pointing to the .prev one.
     path.write_bytes(path.read_bytes()[:100])
     with pytest.raises(SessionError, match=r"previous session is at .*s\.session\.prev"):
         SlamRuntime.resume(path)
-    assert SlamRuntime.resume(tmp_path / "s.session.prev").slam.lost_matches == \
-        runtime.slam.lost_matches - 1
+    assert SlamRuntime.resume(tmp_path / "s.session.prev").slam.front_end.lost_matches == \
+        runtime.slam.front_end.lost_matches - 1
 
 
 def test_an_interrupted_save_leaves_the_previous_file_intact(saved, tmp_path, monkeypatch):
@@ -244,7 +254,7 @@ def test_an_interrupted_save_leaves_the_previous_file_intact(saved, tmp_path, mo
 
     monkeypatch.setattr(os, "fsync", power_cut)
     with pytest.raises(KeyboardInterrupt):
-        save_session(path, runtime)
+        write_session(path, runtime.state())
     assert path.read_bytes() == before
     assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
     read_session(path)  # still valid
@@ -254,17 +264,18 @@ def test_an_interrupted_save_leaves_the_previous_file_intact(saved, tmp_path, mo
 SOAK_PROBE = textwrap.dedent(
     """
     import gc, json, sys, tracemalloc
-    from dataclasses import replace
     import numpy as np
     sys.path.insert(0, {tests!r})
-    from test_runtime import QUICK, recorded_drive
-    from runtime.fixed_rate import RuntimeConfig, SlamRuntime
+    from test_runtime import QUICK, recorded_drive, with_runtime
+    from runtime.config import override
+    from runtime.fixed_rate import SlamRuntime
     from runtime.pose import between, compose
     from runtime.scan import PointScan
 
     angles, records = recorded_drive(80)  # one lap, driven again and again
-    config = replace(QUICK, max_nodes=500, max_edges=2500, max_scans=20000)
-    runtime = SlamRuntime(config, RuntimeConfig(tick_budget=0.05))
+    config = override(QUICK, {{"capacity.max_nodes": 500, "capacity.max_edges": 2500,
+                              "capacity.max_scans": 20000}})
+    runtime = SlamRuntime(with_runtime(config, tick_budget=0.05))
     runtime.warm_up()
     scans = []
     for _, _, ranges in records:
@@ -312,14 +323,15 @@ def test_no_traced_memory_growth_over_ten_thousand_ticks_after_warm_up():
 GROWTH_PROBE = textwrap.dedent(
     """
     import gc, json, sys, tracemalloc
-    from dataclasses import replace
     sys.path.insert(0, {tests!r})
-    from test_runtime import LOCKSTEP, QUICK, recorded_drive
+    from test_runtime import LOCKSTEP, recorded_drive
+    from runtime.config import override
     from runtime.fixed_rate import SlamRuntime
     from runtime.scan import PointScan
 
     angles, records = recorded_drive(80)
-    runtime = SlamRuntime(replace(QUICK, max_nodes=600, max_edges=3000), LOCKSTEP)
+    runtime = SlamRuntime(override(LOCKSTEP, {{"capacity.max_nodes": 600,
+                                              "capacity.max_edges": 3000}}))
     runtime.warm_up()
     scan = PointScan(len(angles))
 
@@ -337,7 +349,7 @@ GROWTH_PROBE = textwrap.dedent(
     gc.collect()
     after = tracemalloc.get_traced_memory()[0]
     print(json.dumps({{"added": runtime.slam.graph.n_nodes - nodes, "growth": after - before,
-                      "loops": runtime.slam.loops.accepted}}))
+                      "loops": runtime.slam.loops_closed}}))
     """
 )
 
@@ -364,7 +376,7 @@ def test_graph_growth_allocates_nothing_that_stays():
 
 def test_run_ticks_at_its_rate_and_stops_on_request():
     angles, records = recorded_drive(5)
-    runtime = SlamRuntime(QUICK, RuntimeConfig(rate_hz=50, tick_budget=0.015))
+    runtime = SlamRuntime(with_runtime(QUICK, rate_hz=50, tick_budget=0.015))
     stop = threading.Event()
     seen = []
 
@@ -372,11 +384,11 @@ def test_run_ticks_at_its_rate_and_stops_on_request():
         seen.append(time.perf_counter())
         if len(seen) < len(records):
             _, odometry, ranges = records[len(seen)]
-            rt.inbox.put_ranges(ranges, angles, float(len(seen)), odometry, 0.05, 12.0)
+            rt.inbox.put_ranges(angles=angles, ranges=ranges, stamp=float(len(seen)), odometry=odometry)
         if len(seen) == 25:
             stop.set()
 
-    runtime.inbox.put_ranges(records[0][2], angles, 0.0, records[0][1], 0.05, 12.0)
+    runtime.inbox.put_ranges(angles=angles, ranges=records[0][2], stamp=0.0, odometry=records[0][1])
     runtime.run(stop, on_tick=on_tick)
     assert len(seen) == 25
     assert runtime.stats.scans == 5

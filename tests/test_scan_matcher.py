@@ -99,5 +99,5 @@ def test_bad_input_raises_clear_errors():
         m.align_scans(PointScan(4), ref)
     with pytest.raises(ValueError, match="non-finite"):
         m.align_scans(PointScan.from_points([[1.0, 0.0]]), ref, guess=[0, np.nan, 0])
-    with pytest.raises(ValueError, match="unknown kernel"):
+    with pytest.raises(ValueError, match="matcher.kernel: must be one of paper, cauchy"):
         MatcherConfig(kernel="huber")

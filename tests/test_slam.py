@@ -12,7 +12,8 @@ from runtime.pose import between, compose, wrap_angle
 from runtime.pose_graph import LOOP
 from scripts.relations import Relations, RelationsFormatError, read_relations
 from runtime.scan import PointScan
-from runtime.slam import GraphSlam, SlamConfig
+from runtime.config import SlamConfig, override
+from runtime.slam import GraphSlam
 from runtime.warm_up import loop_path, room_world, scan_at
 
 ANGLES = np.deg2rad(np.arange(-180, 180, 1.0))
@@ -41,8 +42,8 @@ def test_loop_closes_and_optimised_trajectory_recovers_the_truth():
     slam, truth, _ = run()
     stamps, poses = slam.trajectory()
     err = np.hypot(*(poses[:, :2] - truth[:, :2]).T)
-    assert slam.loops.accepted >= 1
-    assert np.sum(slam.graph.kind[: slam.graph.n_edges] == LOOP) == slam.loops.accepted
+    assert slam.loops_closed >= 1
+    assert np.sum(slam.graph.kind[: slam.graph.n_edges] == LOOP) == slam.loops_closed
     assert err.max() < 0.15 and err.mean() < 0.05, (err.max(), err.mean())
     assert np.allclose(stamps, np.arange(len(truth)))
 
@@ -83,16 +84,16 @@ def test_false_loop_candidate_is_rejected_and_graph_restored():
     other = room_world(99, size=(7.0, 11.0), boxes=5, walls=2)
     wrong = PointScan(len(ANGLES)).set_ranges(scan_at(other, [3.0, 5.0, 1.0], ANGLES, 12.0),
                                               ANGLES, 0.05, 12.0)
-    slam._store_scan(victim, wrong)
+    slam.nodes.store(victim, wrong)
     edges, poses = g.n_edges, g.poses[: g.n_nodes].copy()
-    assert victim in slam.loops.candidates(g, slam.node_cov, node)
-    assert slam.seek_loop_closure(node) is False
+    assert victim in slam.back_end.loops.candidates(g, slam.nodes.cov, node)
+    assert slam.back_end.seek_loop_closure(node) is False
     assert g.n_edges == edges and np.array_equal(g.poses[: g.n_nodes], poses)
-    assert slam.loops.rejected_match + slam.loops.rejected_consistency >= 1
+    assert slam.back_end.loops.rejected_match + slam.back_end.loops.rejected_consistency >= 1
 
 
 def test_capacity_reached_keeps_localising():
-    slam, _, _ = run(steps=40, config=SlamConfig(max_nodes=5, max_edges=8))
+    slam, _, _ = run(steps=40, config=override(SlamConfig(), {"capacity.max_nodes": 5, "capacity.max_edges": 8}))
     assert slam.graph.n_nodes == 5 and "capacity reached" in slam.status
     _, poses = slam.trajectory()
     assert len(poses) == 40 and np.all(np.isfinite(poses))
@@ -161,18 +162,18 @@ def test_scans_only_recovers_after_a_gap_in_the_stream():
         slam.step(scan, None, float(k))
     _, poses = slam.trajectory()
     err = np.hypot(*(poses[:, :2] - between(path[kept], path[0])[:, :2]).T)
-    assert slam.lost_matches >= 1
+    assert slam.front_end.lost_matches >= 1
     assert err.max() < 0.15, err.max()
 
 
 def test_submap_reference_tracks_and_closes_the_loop():
-    slam, truth, _ = run(config=SlamConfig(submap_nodes=4))
+    slam, truth, _ = run(config=override(SlamConfig(), {"front_end.submap_nodes": 4}))
     _, poses = slam.trajectory()
     err = np.hypot(*(poses[:, :2] - truth[:, :2]).T)
-    assert slam.loops.accepted >= 1
+    assert slam.loops_closed >= 1
     assert err.max() < 0.15 and err.mean() < 0.05, (err.max(), err.mean())
     # The reference really holds several scans: more points than the newest scan alone.
-    assert slam._submap.count > slam.node_counts[slam.keyframe]
+    assert slam.front_end._submap.count > slam.nodes.counts[slam.keyframe]
 
 
 def _glitch_run(config, glitch_at=20, glitch_turn_deg=12.0):
@@ -196,33 +197,33 @@ def test_match_contradicting_odometry_is_not_trusted():
     # prediction for the glitch scan, and tracking goes on from there. (The glitch scan became
     # a node here, so the next scans match against it until the next node: also gated.)
     slam, heading_error = _glitch_run(SlamConfig())
-    assert 1 <= slam.lost_matches <= 3
+    assert 1 <= slam.front_end.lost_matches <= 3
     assert heading_error[20] < 1.5 and heading_error.max() < 1.5, heading_error
     # Without the gate the same scan is believed: the pose turns with it.
-    ungated, heading_error = _glitch_run(SlamConfig(odometry_gate=None))
-    assert ungated.lost_matches == 0
+    ungated, heading_error = _glitch_run(override(SlamConfig(), {"front_end.odometry_gate": None}))
+    assert ungated.front_end.lost_matches == 0
     assert heading_error[20] > 8.0, heading_error[20]
 
 
 def test_loop_reference_is_a_submap_around_the_candidate():
     slam, _, _ = run()
-    g, k = slam.graph, slam.loops.config.submap_nodes
+    g, k = slam.graph, slam.config.loop_closure.submap_nodes
     node, candidate = g.n_nodes - 1, 5
     assert k >= 1
-    slam.align_loop(candidate, node)  # builds the submap, whatever the match
-    submap = slam._loop_submap
-    counts = slam.node_counts[candidate - k : candidate + k + 1]
+    slam.back_end.align_loop(candidate, node)  # builds the submap, whatever the match
+    submap = slam.back_end._submap
+    counts = slam.nodes.counts[candidate - k : candidate + k + 1]
     assert submap.count == counts.sum()
     # Each neighbour's scan sits where the graph puts it: back in the world, it lands on its
     # own node's points.
     start = 0
     for other in range(candidate - k, candidate + k + 1):
-        m = slam.node_counts[other]
+        m = slam.nodes.counts[other]
         placed = compose(g.poses[candidate], np.c_[submap.buffer[start : start + m], np.zeros(m)])
-        own = compose(g.poses[other], np.c_[slam.node_points[other, :m], np.zeros(m)])
+        own = compose(g.poses[other], np.c_[slam.nodes.points[other, :m], np.zeros(m)])
         assert np.allclose(placed[:, :2], own[:, :2], atol=1e-9)
         start += m
     # Near the new node the submap stops short of its neighbours (they are not a loop).
-    recent = node - slam.loops.config.exclude_recent
-    slam.align_loop(recent, node)
-    assert slam._loop_submap.count == slam.node_counts[recent - k : recent + 1].sum()
+    recent = node - slam.config.loop_closure.exclude_recent
+    slam.back_end.align_loop(recent, node)
+    assert slam.back_end._submap.count == slam.nodes.counts[recent - k : recent + 1].sum()
