@@ -1,6 +1,5 @@
 """The back end (global SLAM): the pose graph's loop-closure search (Alg. 7) and its
-re-optimisation (Eq. 21), written once as a state machine of slices; docs/runtime.md
-"Back-end slices".
+re-optimisation (Eq. 21), written once as a state machine of slices; docs/runtime.md §3.
 
 Each new node joins a queue of fixed capacity. Its search then runs as a chain of slices:
 

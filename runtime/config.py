@@ -128,7 +128,7 @@ def validate(section, where: str | None = None) -> None:
 @dataclass(frozen=True)
 class SwarmConfig(Section):
     """Which swarm method, its parameters (defaults: the paper's Table 1) and halting rules
-    (method.md §2; docs/method.md "Swarm optimizers")."""
+    (docs/method.md §2)."""
 
     KEY = "matcher.swarm"
     optimizer: str = _setting("abc", "the swarm method", choices=OPTIMIZERS)
@@ -156,7 +156,7 @@ def _budgeted_swarm() -> SwarmConfig:
 
 @dataclass(frozen=True)
 class MatcherConfig(Section):
-    """Scan matcher, Alg. 5 (docs/method.md "Scan matching"). The defaults are the ones
+    """Scan matcher, Alg. 5 (docs/method.md §3). The defaults are the ones
     ``swarmslam bench matcher`` measures; :meth:`paper` gives the paper's own form."""
 
     KEY = "matcher"
@@ -209,7 +209,7 @@ class SensorConfig(Section):
 
 @dataclass(frozen=True)
 class CapacityConfig(Section):
-    """What grows with time, fixed at start-up (README, "Sizing")."""
+    """What grows with time, fixed at start-up (docs/runtime.md §4)."""
 
     KEY = "capacity"
     max_nodes: int = _setting(5000, "pose-graph nodes", ge=2)
@@ -220,7 +220,7 @@ class CapacityConfig(Section):
 @dataclass(frozen=True)
 class FrontEndConfig(Section):
     """Tracking against the keyframe (Alg. 5) and node insertion (Alg. 6); docs/method.md
-    "Front end"."""
+    §6.1."""
 
     KEY = "front_end"
     node_distance: float = _setting(0.5, "m moved since the last node that makes a node (Alg. 6)",
@@ -249,7 +249,7 @@ class FrontEndConfig(Section):
 
 @dataclass(frozen=True)
 class LoopClosureConfig(Section):
-    """Seek_Loop_Closure, Alg. 7 (docs/method.md "Loop closure")."""
+    """Seek_Loop_Closure, Alg. 7 (docs/method.md §5)."""
 
     KEY = "loop_closure"
     search_radius: float = _setting(6.0, "m: candidates beyond this are never considered", gt=0)
@@ -272,7 +272,7 @@ class LoopClosureConfig(Section):
 
 @dataclass(frozen=True)
 class OptimizerConfig(Section):
-    """Gauss–Newton on the pose graph, Eq. 21 (docs/method.md "Graph optimisation")."""
+    """Gauss–Newton on the pose graph, Eq. 21 (docs/method.md §4.3)."""
 
     KEY = "optimizer"
     max_iterations: int = _setting(30, "Gauss–Newton steps before the Levenberg–Marquardt restart",
@@ -299,7 +299,7 @@ class MapConfig(Section):
 
 @dataclass(frozen=True)
 class RuntimeConfig(Section):
-    """The fixed-rate loop (docs/runtime.md)."""
+    """The fixed-rate loop (docs/runtime.md §1)."""
 
     KEY = "runtime"
     rate_hz: float = _setting(10.0, "ticks per second", gt=0)

@@ -2,7 +2,7 @@
 
 Eq. 14 needs, for every transformed point of the current scan, the squared distance to its
 nearest neighbour in the reference scan. A k-d tree query per point per candidate pose is what
-makes naive swarm matchers slow (method.md §3). Instead the squared distance is precomputed on a
+makes naive swarm matchers slow (docs/method.md §3). Instead the squared distance is precomputed on a
 grid around the reference scan and read back by bilinear interpolation.
 
 Nearest neighbours are taken on the reference *surface*: consecutive end points closer than

@@ -1,5 +1,5 @@
 """The embedded-style SLAM runtime: Alg. 4 at a fixed rate, every tick within its budget
-(docs/runtime.md).
+(docs/runtime.md §1).
 
     runtime = SlamRuntime(preset("rplidar-a1"))
     runtime.warm_up()                      # every kernel compiled before the first tick
@@ -22,7 +22,7 @@ Memory: everything that grows with time has a capacity fixed at start-up — nod
 stored scans (``capacity.max_nodes``/``max_edges``, ``sensor.max_points``), trajectory poses
 (``capacity.max_scans``), the loop-search queue (``runtime.loop_queue``); the map is rendered
 on demand, at most ``map.max_cells`` a side. When one is reached the runtime keeps localising
-and says so in ``status``. Sizing: README, "The fixed-rate runtime".
+and says so in ``status``. Sizing: docs/runtime.md §4.
 """
 
 from __future__ import annotations

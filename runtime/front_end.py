@@ -1,5 +1,5 @@
 """The front end (local SLAM): track each scan against the keyframe (Alg. 5) and insert nodes
-(Alg. 6); docs/method.md "Front end".
+(Alg. 6); docs/method.md §6.1.
 
     tracked = front_end.track(scan, odometry, stamp)   # → Tracking(pose, node_added, error)
 
@@ -125,8 +125,7 @@ class FrontEnd:
         self.matcher.build_reference(self._submap_of(self.keyframe), self.reference)
 
     def information(self) -> np.ndarray:
-        """An edge's information matrix: fixed, or Eq. 20's I/σλ² (docs/method.md "Edge
-        information")."""
+        """An edge's information matrix: fixed, or Eq. 20's I/σλ² (docs/method.md §4.2)."""
         c = self.config.front_end
         if c.information == "paper":
             sigma = self.matcher.threshold.std
@@ -165,7 +164,7 @@ class FrontEnd:
                                             self.config.front_end.track_inlier_distance)
 
     def _contradicts_odometry(self, pose, guess, step) -> bool:
-        """The odometry gate (docs/method.md "Front end"): a correction of odometry's
+        """The odometry gate (docs/method.md §6.1): a correction of odometry's
         one-scan prediction larger than odometry errs by between two scans."""
         c = self.config.front_end
         if c.odometry_gate is None:

@@ -1,4 +1,4 @@
-"""Seek_Loop_Closure (Alg. 7; docs/method.md "Loop closure"): candidates, outlier elimination, alignment, and
+"""Seek_Loop_Closure (Alg. 7; docs/method.md §5): candidates, outlier elimination, alignment, and
 the consistency test that replaces the literal "error did not grow" rule.
 
 1. Candidates: nodes near the new node's position, the most recent ones excluded (they are

@@ -3,7 +3,7 @@
 * :func:`scan_to_scan_error` — Eq. 14, ``log(1 + Σ ‖ΔP ⊕ v_i − vr_nn(i)‖²)``, with the
   nearest-neighbour distances read from the reference's distance field; or, with the Cauchy
   kernel, the per-point robust form ``Σ log(1 + d_i²/c²)`` the spec suggests measuring.
-* :func:`scan_to_map_cost` — Eq. 16 as intended (method.md §3, note): a beam end costs 0 on an
+* :func:`scan_to_map_cost` — Eq. 16 as intended (docs/method.md §3, note): a beam end costs 0 on an
   occupied cell and 1 on a free one, and each occupied cell in the robot's ``(ρ+2)²`` square
   costs ``1/(ρ+2)²``. The grid keeps the paper's convention (0 = occupied, 255 = free), so the
   printed terms are taken with their signs swapped, which is what the intent requires.

@@ -1,4 +1,4 @@
-"""2-D poses ``(x, y, θ)`` and their algebra (method.md §1, Eqs. 1–6).
+"""2-D poses ``(x, y, θ)`` and their algebra (docs/method.md §1, Eqs. 1–6).
 
 Two flavours of every operation:
 

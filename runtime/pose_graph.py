@@ -1,4 +1,4 @@
-"""The pose graph (method.md §4): nodes, edges and their errors, in capacities fixed at start.
+"""The pose graph (docs/method.md §4): nodes, edges and their errors, in capacities fixed at start.
 
 Nothing grows per scan: node poses, edge endpoints, measurements and information matrices live
 in arrays sized at construction. When a capacity is reached, ``add_node``/``add_edge`` raise

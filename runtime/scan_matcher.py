@@ -1,4 +1,4 @@
-"""Scan matching by swarm optimisation: ``align_scans`` (Alg. 5, method.md §3).
+"""Scan matching by swarm optimisation: ``align_scans`` (Alg. 5, docs/method.md §3).
 
     reference = matcher.build_reference(previous_scan)      # distance field + local grid
     result = matcher.align_scans(scan, reference, guess)    # ΔP, λ, which objective won

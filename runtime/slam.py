@@ -1,5 +1,5 @@
 """Graph SLAM with swarm scan matching: Alg. 4 as a front end and a back end joined by a thin
-glue (docs/method.md "The SLAM loop").
+glue (docs/method.md §6).
 
     slam = GraphSlam(SlamConfig())
     for scan, odometry in stream:

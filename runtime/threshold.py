@@ -1,4 +1,4 @@
-"""The dynamic rejection threshold, the paper's "mean strategy" (method.md §3, step 3).
+"""The dynamic rejection threshold, the paper's "mean strategy" (docs/method.md §3, step 3).
 
 After every alignment the running mean ``μλ`` and standard deviation ``σλ`` of the matching
 error λ are updated incrementally (Welford), and the threshold becomes ``ε = μλ + σλ``. Until

@@ -1,4 +1,4 @@
-"""Accuracy metrics (method.md §7).
+"""Accuracy metrics (docs/method.md §7).
 
 * :func:`relative_errors` — per-pair errors ``δ_est ⊖ δ_ref`` of relative poses, the building
   block of Kümmerle et al.'s metric (Eqs. 22–23): translational norm (m), rotation (rad).

@@ -16,6 +16,7 @@ from runtime.fixed_rate import SlamRuntime
 from swarmslam_sim.lidar import Lidar, lidar_config
 from swarmslam_sim.mapping import crop_probability, world_grid
 from swarmslam_sim.physics import SUBSTEP, Robot, build_space
+from swarmslam_sim.render import Renderer
 from swarmslam_sim.catalog import get_world
 
 
@@ -190,8 +191,6 @@ class SwarmSlamEnv(gym.Env):
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' "
                             "or 'human' to gymnasium.make")
             return None
-        from swarmslam_sim.render import Renderer
-
         if self.renderer is None:
             self.renderer = Renderer(self.world, self.map, self.render_mode, self.metadata["render_fps"])
         return self.renderer.draw(self)

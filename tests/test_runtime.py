@@ -394,3 +394,13 @@ def test_run_ticks_at_its_rate_and_stops_on_request():
     assert runtime.stats.scans == 5
     gaps = np.diff(seen)
     assert np.median(gaps) == pytest.approx(0.02, abs=0.008)
+
+
+def test_the_hand_off_cannot_swap_angles_and_ranges():
+    """The driver calls back with (angles, ranges, stamp): a positional hand-over would take
+    them in some order silently; keywords only make a wrong wiring fail at once."""
+    runtime = SlamRuntime(LOCKSTEP)
+    angles, records = recorded_drive(1)
+    with pytest.raises(TypeError):
+        runtime.inbox.put_ranges(angles, records[0][2], 0.0)
+    assert runtime.inbox.put_ranges(angles=angles, ranges=records[0][2], stamp=0.0)

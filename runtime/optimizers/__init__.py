@@ -1,4 +1,4 @@
-"""The three swarm optimizers behind one interface (method.md §2).
+"""The three swarm optimizers behind one interface (docs/method.md §2).
 
 ``SwarmOptimizer(config).minimize(objective, lo, hi, seed)`` → ``OptimizeResult`` with the best
 position, its value and the iterations used. Compiled callers (the scan matcher) drive the

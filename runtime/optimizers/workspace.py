@@ -8,7 +8,7 @@ Cost note: a compiled call that receives the workspace can cost ~250 ns of refer
 on its arrays, more than an evaluation; so the optimizers ask and tell in batches (a whole
 iteration, or an ABC phase) and their helpers take only the arrays they use.
 
-Halting (method.md §2, Section 5.1 of the paper): at most ``max_iterations`` iterations; stop when
+Halting (docs/method.md §2, Section 5.1 of the paper): at most ``max_iterations`` iterations; stop when
 the spread between the best and the worst member changed by no more than ``stagnation_tol`` for
 ``stagnation_iterations`` iterations in a row; stop at once when ``f < target_value``. Beyond the
 paper, an optional ``max_evaluations`` budget ends the run at the end of the iteration that

@@ -1,0 +1,127 @@
+"""The configuration tree: one validation, presets, TOML in and out, and the CLI's view of it."""
+
+import dataclasses
+import math
+
+import pytest
+
+from hardware.models import MODELS
+from runtime.config import (
+    OPTIMIZERS,
+    PRESETS,
+    RPLIDAR_MODELS,
+    SIMULATED_LIDARS,
+    ConfigError,
+    SlamConfig,
+    from_toml,
+    load_config,
+    override,
+    preset,
+    rplidar_points,
+    to_dict,
+    to_toml,
+)
+from runtime.objectives import KERNELS
+from runtime.optimizers import ABC, FA, PSO
+from scripts.cli import main
+from swarmslam_sim.lidar import PRESETS as SIM_LIDARS
+
+
+def leaves(config, prefix=""):
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        key = f"{prefix}{f.name}"
+        if dataclasses.is_dataclass(value):
+            yield from leaves(value, key + ".")
+        else:
+            yield key, f, value
+
+
+def test_every_field_is_documented():
+    missing = [key for key, f, _ in leaves(SlamConfig()) if not f.metadata.get("doc")]
+    assert not missing
+
+
+@pytest.mark.parametrize("name", list(PRESETS))
+def test_toml_round_trips_every_preset(name):
+    config = preset(name)
+    assert from_toml(to_toml(config)) == config
+    assert from_toml(to_toml(config, comments=False)) == config
+
+
+def test_one_changed_field_changes_that_field_only(tmp_path):
+    path = tmp_path / "mine.toml"
+    path.write_text("[front_end]\nnode_distance = 0.4\n")
+    changed = load_config(path)
+    before, after = to_dict(SlamConfig()), to_dict(changed)
+    assert after["front_end"]["node_distance"] == 0.4
+    after["front_end"]["node_distance"] = before["front_end"]["node_distance"]
+    assert after == before
+
+
+def test_none_and_integers_where_floats_are_expected(tmp_path):
+    config = from_toml('[front_end]\nodometry_gate = "none"\nnode_angle = 1\n')
+    assert config.front_end.odometry_gate is None
+    assert config.front_end.node_angle == 1.0 and isinstance(config.front_end.node_angle, float)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("[front_end]\nnode_distanse = 0.4\n", r"mine.toml: front_end.node_distanse: unknown key"),
+    ("[frontend]\nnode_distance = 0.4\n", r"mine.toml: frontend: unknown key"),
+    ("[front_end]\nnode_distance = \"far\"\n", r"front_end.node_distance: must be a number"),
+    ("[front_end]\nnode_distance = -1\n", r"front_end.node_distance: must be > 0, got -1"),
+    ("[capacity]\nmax_nodes = 10.5\n", r"capacity.max_nodes: must be a whole number"),
+    ("[matcher.swarm]\noptimizer = \"gwo\"\n", r"matcher.swarm.optimizer: must be one of"),
+    ("[matcher]\nguess_window = [0.3, 0.3]\n", r"matcher.guess_window: needs 3 values"),
+    ("[runtime]\nrate_hz = 100\ntick_budget = 0.05\n", r"runtime.tick_budget: must fit the period"),
+    ("[front_end]\nnode_distance = 0.4\n[[oops\n", r"mine.toml: not valid TOML"),
+    ("[front_end]\ninformation = true\n", r"front_end.information: must be a string"),
+    ("[matcher]\nscan_to_map = 1\n", r"matcher.scan_to_map: must be true or false"),
+])
+def test_bad_fields_are_named(tmp_path, text, message):
+    path = tmp_path / "mine.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=message):
+        load_config(path)
+
+
+def test_built_configs_are_validated_too():
+    with pytest.raises(ConfigError, match="front_end.node_distance: must be > 0"):
+        override(SlamConfig(), {"front_end.node_distance": 0.0})
+    with pytest.raises(ConfigError, match="map.resolution: must be finite"):
+        override(SlamConfig(), {"map.resolution": math.nan})
+
+
+def test_one_list_of_optimizers_and_kernels():
+    assert (OPTIMIZERS[PSO], OPTIMIZERS[ABC], OPTIMIZERS[FA]) == ("pso", "abc", "fa")
+    assert set(KERNELS) == {"paper", "cauchy"}
+
+
+def test_presets_agree_with_the_hardware_and_simulator_tables():
+    for name, (sps, hz, reach) in RPLIDAR_MODELS.items():
+        m = MODELS[name]
+        assert (m.samples_per_second, m.scan_hz, m.max_range) == (sps, hz, reach)
+        c = preset(f"rplidar-{name}")
+        assert c.sensor.max_points == rplidar_points(sps, hz) and c.map.max_range == reach
+    assert preset("rplidar-a1").sensor.max_points == 973  # 4000 / 5.5 × 1.25 + 64
+    for name, (beams, lo, hi) in SIMULATED_LIDARS.items():
+        lidar = SIM_LIDARS[name]
+        assert (lidar.beams, lidar.min_range, lidar.max_range) == (beams, lo, hi)
+        assert preset(f"sim-{name}").sensor.max_points == beams
+
+
+def test_config_show_prints_the_defaults_and_a_file_changes_one_field(tmp_path, capsys):
+    assert main(["config", "show", "--bare"]) == 0
+    assert from_toml(capsys.readouterr().out) == SlamConfig()
+    path = tmp_path / "mine.toml"
+    path.write_text("[loop_closure]\nmin_inliers = 0.7\n")
+    assert main(["config", "show", "rplidar-a2", "--config", str(path)]) == 0
+    shown = from_toml(capsys.readouterr().out)
+    assert shown == override(preset("rplidar-a2"), {"loop_closure.min_inliers": 0.7})
+
+
+def test_a_bad_config_file_is_a_clear_error_from_the_cli(tmp_path, capsys):
+    path = tmp_path / "bad.toml"
+    path.write_text("[front_end]\nnode_distanse = 0.4\n")
+    assert main(["replay", "nowhere.clf", "--config", str(path)]) == 2
+    assert "bad.toml: front_end.node_distanse: unknown key" in capsys.readouterr().err

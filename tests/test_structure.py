@@ -1,0 +1,172 @@
+"""The layering the project promises (README, "Layout"), read from the source itself:
+``scripts`` → (``swarmslam_sim``, ``hardware``) → ``runtime``; ``runtime`` deploys alone on
+numpy/scipy/numba; no import cycle, and none hidden by an import inside a function."""
+
+import ast
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGES = ("runtime", "hardware", "swarmslam_sim", "scripts", "worlds")
+# What each package may import from the project.
+ALLOWED = {
+    "runtime": {"runtime"},
+    "hardware": {"hardware", "runtime"},
+    "swarmslam_sim": {"swarmslam_sim", "runtime", "worlds"},
+    "worlds": set(),
+    "scripts": set(PACKAGES),
+}
+RUNTIME_THIRD_PARTY = {"numpy", "scipy", "numba", "tomli"}
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def imports(path: Path):
+    """(imported module, line, inside a function?) for every import statement in ``path``."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+    found = []
+
+    def visit(node, in_function):
+        for child in ast.iter_child_nodes(node):
+            nested = in_function or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef))
+            if isinstance(child, ast.Import):
+                found.extend((a.name, child.lineno, in_function) for a in child.names)
+            elif isinstance(child, ast.ImportFrom) and child.level == 0 and child.module:
+                found.append((child.module, child.lineno, in_function))
+                # ``from runtime import session``: the submodule is what is imported
+                found.extend((f"{child.module}.{a.name}", child.lineno, in_function)
+                             for a in child.names)
+            visit(child, nested)
+
+    visit(tree, False)
+    return found
+
+
+def project_graph():
+    files = {module_name(p): p for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py")}
+    edges = {}
+    for name, path in files.items():
+        targets = set()
+        for target, line, in_function in imports(path):
+            if target.split(".")[0] in PACKAGES and target in files and target != name:
+                targets.add((target, line, in_function))
+        edges[name] = targets
+    return files, edges
+
+
+FILES, EDGES = project_graph()
+
+
+def test_the_graph_covers_the_project():
+    assert {"runtime.slam", "runtime.front_end", "runtime.back_end", "runtime.config",
+            "hardware.driver", "swarmslam_sim.env", "scripts.cli"} <= set(FILES)
+
+
+@pytest.mark.parametrize("package", PACKAGES)
+def test_each_package_imports_only_what_it_may(package):
+    wrong = [f"{src}:{line} imports {dst}" for src, targets in EDGES.items()
+             if src.split(".")[0] == package
+             for dst, line, _ in targets if dst.split(".")[0] not in ALLOWED[package]]
+    assert not wrong, "\n".join(wrong)
+
+
+def test_runtime_needs_numpy_scipy_numba_only():
+    stdlib = set(sys.stdlib_module_names)
+    wrong = []
+    for name, path in FILES.items():
+        if not name.startswith("runtime"):
+            continue
+        for target, line, _ in imports(path):
+            top = target.split(".")[0]
+            if top not in stdlib and top not in RUNTIME_THIRD_PARTY and top != "runtime":
+                wrong.append(f"{name}:{line} imports {target}")
+    assert not wrong, "\n".join(wrong)
+
+
+def test_no_import_cycle_even_through_imports_inside_functions():
+    graph = {src: {dst for dst, _, _ in targets} for src, targets in EDGES.items()}
+    state, cycle = {}, []
+
+    def visit(node, path):
+        state[node] = "open"
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == "open":
+                cycle.extend(path[path.index(nxt):] + [nxt] if nxt in path else [node, nxt])
+                return True
+            if nxt not in state and visit(nxt, path + [nxt]):
+                return True
+        state[node] = "done"
+        return False
+
+    for node in sorted(graph):
+        if node not in state and visit(node, [node]):
+            break
+    assert not cycle, " -> ".join(cycle)
+
+
+@pytest.mark.parametrize("package", ["runtime", "hardware", "swarmslam_sim"])
+def test_libraries_import_the_project_at_module_level_only(package):
+    """An import inside a function is where a cycle hides; the command line (scripts.cli)
+    may import lazily to start fast, the libraries may not."""
+    late = [f"{src}:{line} imports {dst} inside a function"
+            for src, targets in EDGES.items() if src.split(".")[0] == package
+            for dst, line, in_function in targets if in_function]
+    assert not late, "\n".join(late)
+
+
+def test_a_cycle_is_found_when_there_is_one(tmp_path):
+    """The checker itself: an import inside a function that closes a loop is seen."""
+    (tmp_path / "a.py").write_text("import b\n")
+    (tmp_path / "b.py").write_text("def f():\n    import a\n")
+    found = imports(tmp_path / "b.py")
+    assert found == [("a", 2, True)]
+
+
+def test_every_citation_of_the_docs_points_at_a_section_that_exists():
+    import re
+
+    cited = []
+    for name, path in FILES.items():
+        text = path.read_text(encoding="utf-8")
+        cited += [(name, doc, section) for doc, section in
+                  re.findall(r"docs/(\w+\.md)(?:\s+§(\d+(?:\.\d+)?))?", text)]
+    assert cited
+    missing = []
+    for name, doc, section in cited:
+        path = ROOT / "docs" / doc
+        if not path.exists():
+            missing.append(f"{name} cites docs/{doc}, which does not exist")
+        elif section and not re.search(rf"^#+ {re.escape(section)}\.? ", path.read_text(), re.M):
+            missing.append(f"{name} cites docs/{doc} §{section}, which has no such section")
+    assert not missing, "\n".join(missing)
+
+
+def test_the_configuration_page_lists_every_field():
+    import dataclasses
+
+    from runtime.config import SlamConfig
+
+    page = (ROOT / "docs" / "configuration.md").read_text(encoding="utf-8")
+
+    def walk(section, prefix):
+        for f in dataclasses.fields(section):
+            value = getattr(section, f.name)
+            if dataclasses.is_dataclass(value):
+                yield from walk(value, f"{prefix}{f.name}.")
+            else:
+                yield prefix[:-1], f.name
+
+    table = None
+    absent = []
+    for table, field in walk(SlamConfig(), ""):
+        part = page.split(f"### `[{table}]`", 1)
+        if len(part) < 2 or f"| `{field}` |" not in part[1].split("\n### ", 1)[0]:
+            absent.append(f"{table}.{field}")
+    assert not absent, absent
