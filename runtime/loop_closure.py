@@ -22,6 +22,7 @@ the consistency test that replaces the literal "error did not grow" rule.
 from __future__ import annotations
 
 import math
+
 import numpy as np
 from numba import njit
 

@@ -19,10 +19,15 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from runtime.config import MatcherConfig
 from runtime.distance_field import N_META, build_distance_field
 from runtime.local_map import build_local_map, robot_square
-from runtime.objectives import KERNELS, inlier_fraction, scan_to_map_cost, scan_to_scan_error
-from runtime.config import MatcherConfig
+from runtime.objectives import (
+    KERNELS,
+    inlier_fraction,
+    scan_to_map_cost,
+    scan_to_scan_error,
+)
 from runtime.optimizers import SwarmOptimizer, ask, start, tell
 from runtime.optimizers.workspace import BEST_VAL, EVALUATIONS, ITERATION, reset_run
 from runtime.scan import PointScan

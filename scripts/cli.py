@@ -8,7 +8,15 @@ import sys
 import time
 from pathlib import Path
 
-from runtime.config import DEFAULT_PRESET, OPTIMIZERS, PRESETS, SlamConfig, load_config, preset, to_toml
+from runtime.config import (
+    DEFAULT_PRESET,
+    OPTIMIZERS,
+    PRESETS,
+    SlamConfig,
+    load_config,
+    preset,
+    to_toml,
+)
 
 
 def _bench_matcher(args) -> int:
@@ -46,7 +54,8 @@ def _bench_slam(args) -> int:
             raise SystemExit(f"unknown dataset {d!r}; choose from {', '.join(LOGS)}")
     modes = {"both": (True, False), "odometry": (True,), "scans": (False,)}[args.modes]
     optimizers = tuple(o.strip() for o in args.optimizers.split(",") if o.strip())
-    bench_slam(find_datasets(args.data), optimizers, logs, modes, args.limit, args.out, args.json)
+    bench_slam(find_datasets(args.data), optimizers, logs, modes, args.limit, args.out, args.json,
+               config=_config(args, DEFAULT_PRESET))
     return 0
 
 
@@ -67,7 +76,8 @@ def _bench_runtime(args) -> int:
         bench_soak(args.soak, args.json)
     else:
         bench_runtime(find_datasets(args.data), args.optimizer, args.realtime_minutes,
-                      args.traced_ticks, args.limit, args.json)
+                      args.traced_ticks, args.limit, args.json,
+                      config=_config(args, DEFAULT_PRESET))
     if args.json:
         print(f"wrote {args.json}")
     return 0
@@ -244,6 +254,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--limit", type=int, help="only the first N scans of each log")
     s.add_argument("--out", help="keep each run's map, trajectory and graph here")
     s.add_argument("--json", help="write results here (atomically)")
+    _config_options(s, DEFAULT_PRESET)
     s.set_defaults(func=_bench_slam)
     pg = bsub.add_parser("posegraph", help="Gauss-Newton on the g2o benchmark graphs")
     pg.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
@@ -268,6 +279,7 @@ def build_parser() -> argparse.ArgumentParser:
     rt.add_argument("--soak", type=float, metavar="MINUTES",
                     help="instead: run this long on simulated scans, sampling memory")
     rt.add_argument("--json", help="write results here (atomically)")
+    _config_options(rt, DEFAULT_PRESET)
     rt.set_defaults(func=_bench_runtime)
     return p
 

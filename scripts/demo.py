@@ -16,12 +16,12 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
+from runtime.config import SlamConfig
+from runtime.writers import write_json_atomic
 from scripts.map_io import write_map
 from scripts.png import write_png
 from scripts.progress import Progress
 from scripts.tum import write_tum
-from runtime.config import SlamConfig
-from runtime.writers import write_json_atomic
 from swarmslam_sim.exploration import FrontierExplorer
 
 

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from runtime.occupancy_grid import OccupancyGrid
-from scripts.png import write_png
 from runtime.writers import write_bytes_atomic, write_text_atomic
+from scripts.png import write_png
 
 OCCUPIED_THRESH = 0.65
 FREE_THRESH = 0.196

@@ -14,16 +14,16 @@ from pathlib import Path
 
 import numpy as np
 
-from scripts.metrics import relative_errors
-from scripts.png import write_png
-from swarmslam_sim.canvas import Canvas
 from runtime.pose import between, compose, transform_points
-from scripts.progress import Progress
 from runtime.scan import PointScan
 from runtime.scan_matcher import MatcherConfig, ScanMatcher
 from runtime.warm_up import loop_path, room_world, scan_at
-from scripts.tum import write_tum
 from runtime.writers import write_json_atomic
+from scripts.metrics import relative_errors
+from scripts.png import write_png
+from scripts.progress import Progress
+from scripts.tum import write_tum
+from swarmslam_sim.canvas import Canvas
 
 ANGLES = np.deg2rad(np.arange(-180.0, 180.0, 1.0))
 MAX_RANGE = 12.0

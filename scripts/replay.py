@@ -11,16 +11,16 @@ from pathlib import Path
 
 import numpy as np
 
-from scripts.carmen import read_carmen
 from runtime.config import SlamConfig, override
 from runtime.fixed_rate import SlamRuntime
-from scripts.metrics import kummerle
 from runtime.pose import compose
-from scripts.progress import Progress
-from scripts.relations import read_relations
 from runtime.scan import PointScan
 from runtime.writers import write_json_atomic
+from scripts.carmen import read_carmen
+from scripts.metrics import kummerle
 from scripts.outputs import write_results
+from scripts.progress import Progress
+from scripts.relations import read_relations
 
 
 def replay_config(config: SlamConfig | None = None, optimizer: str | None = None,

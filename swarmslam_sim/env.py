@@ -9,15 +9,15 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from runtime.pose import between_nb, compose_nb, wrap_angle
-from runtime.scan import PointScan, ranges_to_points
 from runtime.config import OPTIMIZERS, SlamConfig, override, simulated
 from runtime.fixed_rate import SlamRuntime
+from runtime.pose import between_nb, compose_nb, wrap_angle
+from runtime.scan import PointScan, ranges_to_points
+from swarmslam_sim.catalog import get_world
 from swarmslam_sim.lidar import Lidar, lidar_config
 from swarmslam_sim.mapping import crop_probability, world_grid
 from swarmslam_sim.physics import SUBSTEP, Robot, build_space
 from swarmslam_sim.render import Renderer
-from swarmslam_sim.catalog import get_world
 
 
 class SwarmSlamEnv(gym.Env):

@@ -5,9 +5,8 @@ import json
 
 import numpy as np
 
+from runtime.warm_up import loop_path, room_world, scan_at
 from scripts.carmen import flaser_angles
-from runtime.warm_up import loop_path
-from runtime.warm_up import room_world, scan_at
 from scripts.cli import main
 
 

@@ -10,9 +10,9 @@ import numpy as np
 
 from hardware.emulator import VirtualRPLidar
 from runtime.pose import between
-from scripts.tum import read_tum
 from scripts.cli import main
 from scripts.emulator_sources import WorldSource
+from scripts.tum import read_tum
 
 
 def test_live_slam_from_the_emulator_tracks_the_true_pose(tmp_path, capsys):

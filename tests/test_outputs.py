@@ -8,8 +8,8 @@ import pytest
 
 from runtime import writers
 from scripts.png import encode_png
-from swarmslam_sim.canvas import Canvas
 from scripts.tum import read_tum, write_tum
+from swarmslam_sim.canvas import Canvas
 
 
 def decode_png(data: bytes) -> np.ndarray:

@@ -13,8 +13,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from runtime.config import (MatcherConfig, RuntimeConfig, SensorConfig, SlamConfig, SwarmConfig,
-                            override)
+from runtime.config import (
+    MatcherConfig,
+    RuntimeConfig,
+    SensorConfig,
+    SlamConfig,
+    SwarmConfig,
+    override,
+)
 from runtime.fixed_rate import SlamRuntime
 from runtime.pose import between
 from runtime.scan import PointScan

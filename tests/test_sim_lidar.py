@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
+from swarmslam_sim.catalog import get_world
 from swarmslam_sim.lidar import PRESETS, Lidar, LidarConfig, lidar_config
 from swarmslam_sim.physics import build_space, pymunk_scan
 from swarmslam_sim.raycast import hit_capsule, point_segment_distance
-from swarmslam_sim.catalog import get_world
 from swarmslam_sim.world import World
 
 SQUARE = World("square", np.array([[0, 0, 4, 0], [4, 0, 4, 4], [4, 4, 0, 4], [0, 4, 0, 0]], float),

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from runtime.text_records import DataFormatError
+from swarmslam_sim.catalog import builtin_worlds, get_world
 from swarmslam_sim.generators import GENERATORS, START_CLEARANCE
 from swarmslam_sim.mapping import world_grid
 from swarmslam_sim.raycast import point_segment_distance
-from swarmslam_sim.catalog import builtin_worlds, get_world
 from swarmslam_sim.world import load_world, save_world
 
 

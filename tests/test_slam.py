@@ -6,15 +6,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from scripts.map_io import read_pgm, write_map
-from scripts.metrics import kummerle
+from runtime.config import SlamConfig, override
 from runtime.pose import between, compose, wrap_angle
 from runtime.pose_graph import LOOP
-from scripts.relations import Relations, RelationsFormatError, read_relations
 from runtime.scan import PointScan
-from runtime.config import SlamConfig, override
 from runtime.slam import GraphSlam
 from runtime.warm_up import loop_path, room_world, scan_at
+from scripts.map_io import read_pgm, write_map
+from scripts.metrics import kummerle
+from scripts.relations import Relations, RelationsFormatError, read_relations
 
 ANGLES = np.deg2rad(np.arange(-180, 180, 1.0))
 

@@ -13,7 +13,14 @@ import math
 
 from numba import njit
 
-from runtime.optimizers.workspace import ask_every_member, ALPHA, PHASE, clip, end_iteration, offer_best
+from runtime.optimizers.workspace import (
+    ALPHA,
+    PHASE,
+    ask_every_member,
+    clip,
+    end_iteration,
+    offer_best,
+)
 from runtime.rng import normal, uniform
 
 ALPHA0, BETA0, GAMMA, ALPHA_DECAY = 0, 1, 2, 3

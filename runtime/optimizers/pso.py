@@ -8,7 +8,13 @@ from __future__ import annotations
 
 from numba import njit
 
-from runtime.optimizers.workspace import ask_every_member, PHASE, clip, end_iteration, offer_best
+from runtime.optimizers.workspace import (
+    PHASE,
+    ask_every_member,
+    clip,
+    end_iteration,
+    offer_best,
+)
 from runtime.rng import uniform
 
 W, C1, C2, V_MAX = 0, 1, 2, 3

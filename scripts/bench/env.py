@@ -41,9 +41,9 @@ def _steps_per_second(slam: bool, steps: int, world: str, seed: int = 0) -> floa
 
 
 def _scans_per_second(world: str, scans: int) -> dict:
+    from swarmslam_sim.catalog import get_world
     from swarmslam_sim.lidar import PRESETS, Lidar
     from swarmslam_sim.physics import build_space, pymunk_scan
-    from swarmslam_sim.catalog import get_world
 
     w = get_world(world)
     lidar = Lidar(w, PRESETS["rplidar-a1"])

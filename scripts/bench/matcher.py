@@ -16,15 +16,15 @@ from pathlib import Path
 
 import numpy as np
 
+from runtime.pose import between
+from runtime.scan import PointScan
+from runtime.scan_matcher import MatcherConfig, ScanMatcher
+from runtime.writers import write_json_atomic
 from scripts.carmen import read_carmen
 from scripts.datasets import require
 from scripts.icp import icp
 from scripts.metrics import is_failure, pair_errors, relative_errors
-from runtime.pose import between
 from scripts.progress import Progress
-from runtime.scan import PointScan
-from runtime.scan_matcher import MatcherConfig, ScanMatcher
-from runtime.writers import write_json_atomic
 
 DATASETS = {"intel": "intel-corrected.log.gz", "aces": "aces-corrected.log.gz"}
 EQ24_PAIRS = 50

@@ -9,10 +9,10 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from scripts.datasets import require
-from scripts.g2o import read_g2o
 from runtime.graph_optimizer import GaussNewton
 from runtime.writers import write_json_atomic
+from scripts.datasets import require
+from scripts.g2o import read_g2o
 
 GRAPHS = {
     "INTEL": ("input_INTEL_g2o.g2o", 215.830, 12.0),

@@ -24,17 +24,17 @@ from pathlib import Path
 
 import numpy as np
 
-from scripts.carmen import read_carmen
-from scripts.datasets import require
 from runtime.config import SlamConfig, override
 from runtime.fixed_rate import SlamRuntime
+from runtime.scan import PointScan
+from runtime.warm_up import LoopDrive
+from runtime.writers import write_json_atomic
+from scripts.carmen import read_carmen
+from scripts.datasets import require
 from scripts.metrics import kummerle
 from scripts.progress import Progress
 from scripts.relations import read_relations
 from scripts.replay import replay, robot_frame_scan
-from runtime.scan import PointScan
-from runtime.warm_up import LoopDrive
-from runtime.writers import write_json_atomic
 
 WARM_UP = 1000  # scans before RSS and traced memory are taken as the baseline
 
@@ -171,7 +171,8 @@ def recorded_rate(scans, config, minutes: float, echo) -> dict:
 
 
 def bench_runtime(data_dir: Path, optimizer="abc", realtime_minutes=2.0, traced_ticks=6000,
-                  limit=None, json_path=None, echo=print) -> dict:
+                  limit=None, json_path=None, echo=print, config=None) -> dict:
+    """``config``: the SLAM's configuration (default: the defaults), run budgeted."""
     log_path = require(Path(data_dir) / "radish" / "intel.clf.gz")
     rel_path = require(Path(data_dir) / "radish" / "intel.relations")
     log = read_carmen(log_path)
@@ -179,13 +180,15 @@ def bench_runtime(data_dir: Path, optimizer="abc", realtime_minutes=2.0, traced_
         log.lasers = log.lasers[:limit]
     scans = robot_frame_scans(log)
     relations = read_relations(rel_path)
-    config = override(SlamConfig(), {"matcher.swarm.optimizer": optimizer,
+    config = override(config or SlamConfig(), {"matcher.swarm.optimizer": optimizer,
+                                               "runtime.schedule": "budgeted",
                                      "capacity.max_scans": len(scans) + 1})
     rc = config.runtime
     result = {"benchmark": "runtime", "log": str(log_path), "optimizer": optimizer,
               "runtime_config": {"rate_hz": rc.rate_hz, "tick_budget_s": rc.tick_budget}}
     result["max_speed"] = max_speed(scans, relations, config, echo)
-    unsliced = replay(log_path, rel_path, optimizer, True, None, limit, label="unsliced")
+    unsliced = replay(log_path, rel_path, optimizer, True, None, limit, label="unsliced",
+                      config=config)
     result["unsliced"] = {k: unsliced[k] for k in ("eT", "eT_std", "eR_deg", "eR_std",
                                                    "loops_accepted", "latency_ms_p99")}
     result["traced"] = traced(scans, config, traced_ticks)

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from runtime.writers import write_json_atomic
 from scripts.datasets import require
 from scripts.replay import replay
-from runtime.writers import write_json_atomic
 
 LOGS = {"intel": ("intel.clf.gz", "intel.relations"), "aces": ("aces.clf.gz", "aces.relations")}
 # Hess et al. 2016 (Table II) and Kümmerle et al. 2009, same metric (shared/datasets/README).
@@ -24,7 +24,10 @@ PUBLISHED = {
 
 
 def bench_slam(data_dir: Path, optimizers=("abc", "pso", "fa"), logs=tuple(LOGS),
-               modes=(True, False), limit=None, out_dir=None, json_path=None, echo=print):
+               modes=(True, False), limit=None, out_dir=None, json_path=None, echo=print,
+               config=None):
+    """``config``: the SLAM's configuration (default: the defaults); each run sets its
+    optimizer."""
     results = {"benchmark": "slam", "runs": []}
     for name in logs:
         log, rel = LOGS[name]
@@ -35,7 +38,8 @@ def bench_slam(data_dir: Path, optimizers=("abc", "pso", "fa"), logs=tuple(LOGS)
             for odometry in modes:
                 label = f"{name} {optimizer} {'odom' if odometry else 'scans'}"
                 run_out = None if out_dir is None else Path(out_dir) / label.replace(" ", "-")
-                m = replay(log_path, rel_path, optimizer, odometry, run_out, limit, label=label)
+                m = replay(log_path, rel_path, optimizer, odometry, run_out, limit, label=label,
+                           config=config)
                 m["dataset"] = name
                 results["runs"].append(m)
                 rows.append((f"{optimizer} {'+odometry' if odometry else 'scans only'}", m))
