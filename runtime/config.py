@@ -42,10 +42,9 @@ class ConfigError(ValueError):
     """A configuration value or file that cannot be used; the message names the key."""
 
 
-def doc(text: str, *, gt=None, ge=None, le=None, lt=None, choices=None, length=None):
+def doc(text: str, *, gt=None, ge=None, le=None, lt=None, choices=None):
     """Field metadata: what the field means and the bounds that ``validate`` enforces."""
-    return {"doc": text, "gt": gt, "ge": ge, "le": le, "lt": lt, "choices": choices,
-            "length": length}
+    return {"doc": text, "gt": gt, "ge": ge, "le": le, "lt": lt, "choices": choices}
 
 
 def _setting(default, text, **bounds):
@@ -102,7 +101,7 @@ def _check_value(key, value, hint, meta):
     if typing.get_origin(hint) is tuple:
         if not isinstance(value, tuple):
             raise ConfigError(f"{key}: must be a list, got {value!r}")
-        length = meta.get("length") or (len(args) if Ellipsis not in args else None)
+        length = None if Ellipsis in args else len(args)
         if length is not None and len(value) != length:
             raise ConfigError(f"{key}: needs {length} values, got {len(value)}")
         for v in value:
@@ -428,31 +427,29 @@ def from_dict(data: dict, base=None, cls=SlamConfig, where: str = ""):
     if not isinstance(data, dict):
         raise ConfigError(f"{where or 'config'}: must be a table, got {data!r}")
     hints = typing.get_type_hints(cls)
-    names = {f.name for f in fields(cls)}
+    meta = {f.name: f.metadata for f in fields(cls)}
     changes = {}
     for key, value in data.items():
         path = f"{where}.{key}" if where else key
-        if key not in names:
-            raise ConfigError(f"{path}: unknown key (valid: {', '.join(sorted(names))})")
+        if key not in meta:
+            raise ConfigError(f"{path}: unknown key (valid: {', '.join(sorted(meta))})")
         kind = hints[key]
         if is_dataclass(kind):
             changes[key] = from_dict(value, getattr(base, key), kind, path)
             continue
         if value == NONE:
             value = None
+        elif _wants_float(kind):  # TOML writes 1 for 1.0
+            value = tuple(map(_as_float, value)) if isinstance(value, list) else _as_float(value)
         elif isinstance(value, list):
             value = tuple(value)
-        if isinstance(value, int) and not isinstance(value, bool) and _wants_float(kind):
-            value = float(value)
-        if isinstance(value, tuple):
-            value = tuple(float(v) if isinstance(v, int) and not isinstance(v, bool)
-                          and _wants_float(kind) else v for v in value)
-        _check_value(path, value, kind, next(f for f in fields(cls) if f.name == key).metadata)
+        _check_value(path, value, kind, meta[key])
         changes[key] = value
-    try:
-        return replace(base, **changes)
-    except ConfigError as exc:  # a cross-field rule
-        raise ConfigError(str(exc)) from None
+    return replace(base, **changes)  # a cross-field rule raises ConfigError here
+
+
+def _as_float(value):
+    return float(value) if isinstance(value, int) and not isinstance(value, bool) else value
 
 
 def _wants_float(hint) -> bool:

@@ -302,9 +302,8 @@ class SlamRuntime:
         """A runtime continuing the session saved at ``path``."""
         state = session.read_session(path)
         try:
-            runtime = cls(from_dict(state["config"]), seed=int(state["seed"]),
-                          initial_pose=state["slam"]["front_end"]["initial_pose"], clock=clock)
-            runtime.restore(state)
+            runtime = cls(from_dict(state["config"]), seed=int(state["seed"]), clock=clock)
+            runtime.restore(state)  # the initial pose too
         except KeyError as exc:
             raise session.SessionError(f"{path}: missing field {exc.args[0]!r}") from None
         except (ValueError, IndexError, TypeError) as exc:
