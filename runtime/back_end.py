@@ -23,8 +23,9 @@ from dataclasses import replace
 import numpy as np
 
 from runtime.config import SlamConfig
+from runtime.degeneracy import Degeneracy
 from runtime.graph_optimizer import GaussNewton
-from runtime.loop_closure import LoopCloser, relative_guess
+from runtime.loop_closure import LoopCloser, relative_guess, visibility
 from runtime.node_scans import NodeScans
 from runtime.pose_graph import LOOP, PoseGraph
 from runtime.scan import PointScan
@@ -52,6 +53,10 @@ class BackEnd:
         self._scan = PointScan(points)
         self._submap = PointScan(points * (2 * lc.submap_nodes + 1))
         self._saved_poses = np.zeros((graph.max_nodes, 3))
+        self._image = np.zeros(lc.bearing_bins)
+        self._state = np.zeros(points, np.int64)
+        self._seen = np.zeros(2, np.int64)
+        self._window = np.zeros(3)
         self.revision = 0  # bumped whenever a kept closure moved the optimised poses
         self.status = "ok"
         # The queue of nodes awaiting their search, and the search under way.
@@ -64,6 +69,7 @@ class BackEnd:
         self.node = -1  # node whose search is under way (-1: none)
         self.phase = SELECT
         self.z = np.zeros(3)  # the aligned candidate's measurement, between ALIGN and CLOSE
+        self.z_info = np.eye(3)  # and its information
         self.cost = np.zeros(3)  # expected seconds per slice kind (decaying maximum)
         self.waited = 0  # ticks the next slice has been deferred in a row
         self.enqueued = 0
@@ -176,22 +182,41 @@ class BackEnd:
 
     def align_loop(self, candidate: int, node: int):
         """Step 3a: ``node``'s pose in ``candidate``'s frame by Alg. 5 against the submap
-        around the candidate, or None when too few of its points land on its surfaces."""
+        around the candidate, or None when the submap's scans saw too little of where the
+        match puts its points, or saw through too many of them."""
         loops = self.loops
         c = loops.config
         loops.attempts += 1
         last = min(candidate + c.submap_nodes, node - c.exclude_recent)  # never node's neighbours
-        members = range(max(candidate - c.submap_nodes, 0), max(last, candidate) + 1)
-        submap = self.nodes.place(self.graph.poses, members, candidate, self._submap)
+        first, last = max(candidate - c.submap_nodes, 0), max(last, candidate)
+        submap = self.nodes.place(self.graph.poses, range(first, last + 1), candidate,
+                                  self._submap)
         reference = self.matcher.build_reference(submap, self.reference)
         scan = self.nodes.load(node, self._scan)
-        match = self.matcher.align_scans(scan, reference,
-                                         relative_guess(self.graph, candidate, node))
-        if self.matcher.inlier_fraction(scan, reference, match.pose,
-                                        c.inlier_distance) < c.min_inliers:
-            loops.rejected_match += 1
-            return None
-        return match.pose
+        guess = relative_guess(self.graph, candidate, node)
+        window = self.loops.window(self.graph, self.nodes.cov, candidate, node, self._window)
+        pose = self.matcher.align_scans(scan, reference, guess, window).pose
+        self.z_info[:] = self.information()
+        ratio = self.config.front_end.degeneracy_ratio
+        if ratio > 0:  # along a corridor the graph's estimate stands in, the edge weak there
+            fc = self.config.front_end
+            h = self.matcher.curvature(scan, reference, pose, fc.curvature_step)
+            degeneracy = Degeneracy(h, ratio, fc.degenerate_information)
+            pose = degeneracy.remap(pose, guess)
+            self.z_info[:] = degeneracy.information(self.z_info)
+        inliers = self.matcher.inlier_fraction(scan, reference, pose, c.inlier_distance,
+                                               c.inlier_slope)
+        seen = self._seen  # both tests always run: one cost per attempt, every kernel warm
+        visibility(self.nodes.points, self.nodes.counts, self.graph.poses, first, last,
+                   candidate, scan.buffer, scan.count, float(pose[0]), float(pose[1]),
+                   float(pose[2]), c.inlier_distance, c.inlier_slope, self._image, self._state,
+                   seen)
+        on, through = int(seen[0]), int(seen[1])
+        if inliers >= c.min_inliers or (on >= c.min_overlap * scan.count
+                                        and through <= c.max_violations * (on + through)):
+            return pose
+        loops.rejected_match += 1
+        return None
 
     def close_loop(self, candidate: int, node: int, z) -> bool:
         """Step 3b: add the loop edge, re-optimise (Eq. 21), and keep the edge only if the
@@ -202,9 +227,9 @@ class BackEnd:
         total_before = g.chi2()
         saved = self._saved_poses[: g.n_nodes]
         saved[:] = g.poses[: g.n_nodes]
-        edge = g.add_edge(candidate, node, z, self.information(), LOOP)
+        edge = g.add_edge(candidate, node, z, self.z_info, LOOP)
         try:
-            self.optimizer.optimize()
+            self.optimizer.optimize(exempt=edge)  # on trial: judged at its full weight
         except FactorCapacityError as exc:  # the graph as it was; localising goes on
             g.remove_last_edge()
             g.poses[: g.n_nodes] = saved
@@ -234,7 +259,8 @@ class BackEnd:
                       self.loops.rejected_consistency],
             "queue": np.array(self.queued(), np.int64),
             "candidates": self.candidates[: self.n_candidates].copy(),
-            "z": self.z.copy(), "cost": self.cost.copy(), "slices": self.slices.copy(),
+            "z": self.z.copy(), "z_info": self.z_info.copy(), "cost": self.cost.copy(),
+            "slices": self.slices.copy(),
             "node": self.node, "phase": self.phase, "next_candidate": self.next_candidate,
             "waited": self.waited, "enqueued": self.enqueued, "searched": self.searched,
             "dropped": self.dropped, "deferred": self.deferred, "forced": self.forced,
@@ -261,6 +287,7 @@ class BackEnd:
         self.n_candidates = len(cand)
         self.candidates[: self.n_candidates] = cand
         self.z[:], self.cost[:], self.slices[:] = state["z"], state["cost"], state["slices"]
+        self.z_info[:] = state["z_info"]
         self.node = node
         (self.phase, self.next_candidate, self.waited, self.enqueued, self.searched,
          self.dropped, self.deferred, self.forced, self.revision) = (

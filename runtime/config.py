@@ -235,6 +235,8 @@ class FrontEndConfig(Section):
         ge=0, le=1)
     track_inlier_distance: float = _setting(0.2, "m: a point this near a surface is an inlier",
                                             gt=0)
+    track_inlier_slope: float = _setting(0.01, "m per m of range added to track_inlier_distance "
+                                         "(beams spread and graze)", ge=0)
     weak_information_factor: float = _setting(
         9.0, "the next edge's information is divided by this after a lost match", ge=1)
     odometry_gate: tuple[float, float] | None = _setting(
@@ -244,6 +246,15 @@ class FrontEndConfig(Section):
     odometry_gate_share: tuple[float, float] = _setting(
         (0.2, 0.35), "shares of odometry's step (translation, rotation) added to the gate", ge=0)
     submap_nodes: int = _setting(1, "node scans in the keyframe reference (1: the newest)", ge=1)
+    degeneracy_ratio: float = _setting(
+        0.12, "a translation direction the match pins less than this share of the other is "
+        "degenerate (a plain corridor's axis): the prediction stands in along it; 0: off",
+        ge=0, lt=1)
+    degenerate_information: float = _setting(
+        0.01, "the least share of its information an edge keeps along a degenerate direction",
+        gt=0, le=1)
+    curvature_step: tuple[float, float] = _setting(
+        (0.05, 0.01), "finite-difference steps (m, rad) of the match's curvature", gt=0)
 
 
 @dataclass(frozen=True)
@@ -259,14 +270,27 @@ class LoopClosureConfig(Section):
     chi2_gate: float = _setting(7.81, "χ²₃ at 95% on the new edge's own error after optimising",
                                 gt=0)
     total_gate: float = _setting(16.27, "χ²₃ at 99.9% on the rise of the total error", gt=0)
-    min_inliers: float = _setting(0.8, "share of points on the submap's surfaces to accept a "
+    min_inliers: float = _setting(0.8, "share of points on the submap's surfaces that accepts a "
                                   "loop match (strict: a wrong loop bends the map)", ge=0, le=1)
-    inlier_distance: float = _setting(0.2, "m: a point this near a surface is an inlier", gt=0)
+    min_overlap: float = _setting(
+        0.3, "or: share of the new scan's points that land on surfaces the submap's scans saw "
+        "(1: this test off)", ge=0, le=1)
+    max_violations: float = _setting(
+        0.03, "largest share of the points the submap's scans saw that may lie in space they "
+        "saw through", ge=0, le=1)
+    inlier_distance: float = _setting(0.2, "m: a point this near a seen surface is on it", gt=0)
+    inlier_slope: float = _setting(0.01, "m per m of range added to inlier_distance (beams "
+                                   "spread and graze)", ge=0)
+    bearing_bins: int = _setting(720, "bearing bins of a submap scan's range image", ge=8)
     position_floor: float = _setting(0.1, "m: minimum std of the relative position in the gate",
                                      ge=0)
     submap_nodes: int = _setting(2, "node scans either side of the candidate in its submap", ge=0)
     search_window: tuple[float, float, float] = _setting(
-        (2.0, 2.0, 0.5), "half-widths of the loop match's box around the graph's estimate", gt=0)
+        (2.0, 2.0, 0.5), "least half-widths of the loop match's box around the graph's estimate",
+        gt=0)
+    max_search_window: tuple[float, float, float] = _setting(
+        (2.0, 2.0, 0.5), "largest half-widths: between the two, the box spans 3σ of the "
+        "propagated relative pose", gt=0)
 
 
 @dataclass(frozen=True)
@@ -283,6 +307,15 @@ class OptimizerConfig(Section):
     lm_initial_damping: float = _setting(1e-5, "Levenberg–Marquardt μ₀ as a share of max diag(H)",
                                          gt=0)
     lm_iteration_factor: int = _setting(10, "LM may take this many times max_iterations", ge=1)
+    robust_loops: float | None = _setting(
+        None, "Φ of dynamic covariance scaling on loop edges (an edge whose eᵀΩe exceeds Φ is "
+        "down-weighted); none: plain least squares, as g2o", gt=0)
+
+
+def _slam_optimizer() -> OptimizerConfig:
+    # The SLAM's graph keeps a loop closure that later evidence contradicts from bending the
+    # map: Φ = χ²₃ at 95%, so an edge the consistency test would pass keeps its full weight.
+    return OptimizerConfig(robust_loops=7.81)
 
 
 @dataclass(frozen=True)
@@ -347,7 +380,7 @@ class SlamConfig(Section):
     front_end: FrontEndConfig = _section(FrontEndConfig, "tracking and node insertion")
     matcher: MatcherConfig = _section(MatcherConfig, "the scan matcher (Alg. 5)")
     loop_closure: LoopClosureConfig = _section(LoopClosureConfig, "loop closure (Alg. 7)")
-    optimizer: OptimizerConfig = _section(OptimizerConfig, "Gauss–Newton (Eq. 21)")
+    optimizer: OptimizerConfig = _section(_slam_optimizer, "Gauss–Newton (Eq. 21)")
     map: MapConfig = _section(MapConfig, "the occupancy grid")
     runtime: RuntimeConfig = _section(RuntimeConfig, "the fixed-rate loop")
 

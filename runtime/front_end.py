@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from runtime.config import SlamConfig
+from runtime.degeneracy import Degeneracy
 from runtime.loop_closure import propagate_covariance
 from runtime.node_scans import NodeScans
 from runtime.pose import between, compose
@@ -66,6 +67,8 @@ class FrontEnd:
         self.have_odometry = False
         self.weak = False  # a match since the last node was replaced by odometry
         self.lost_matches = 0
+        self.degenerate_matches = 0  # matches held to the prediction along a direction
+        self.degeneracy = None  # the last match's (runtime.degeneracy), when measured
         self.status = "ok"
 
     # ------------------------------------------------------------------ Alg. 5 + Alg. 6
@@ -79,6 +82,9 @@ class FrontEnd:
         guess = compose(self.rel, step)
         match = self.matcher.align_scans(scan, self.reference, guess)  # Alg. 5
         pose = match.pose
+        self.degeneracy = None
+        if self.config.front_end.degeneracy_ratio > 0:
+            pose = self._constrained(scan, pose, guess)
         if (self._inliers(scan, pose) < self.config.front_end.min_track_inliers
                 or (odometry is not None and self._contradicts_odometry(pose, guess, step))):
             pose = self._recover(scan, pose, guess, odometry is not None)
@@ -105,6 +111,8 @@ class FrontEnd:
         previous = self.keyframe
         node = g.add_node(compose(g.poses[previous], self.rel), stamp)
         info = self.information()
+        if self.degeneracy is not None:  # the edge is the last match: weak where it slid
+            info = self.degeneracy.information(info)
         if self.weak:
             info = info / c.weak_information_factor
             self.weak = False
@@ -160,8 +168,9 @@ class FrontEnd:
                                 self._submap)
 
     def _inliers(self, scan, pose) -> float:
-        return self.matcher.inlier_fraction(scan, self.reference, pose,
-                                            self.config.front_end.track_inlier_distance)
+        c = self.config.front_end
+        return self.matcher.inlier_fraction(scan, self.reference, pose, c.track_inlier_distance,
+                                            c.track_inlier_slope)
 
     def _contradicts_odometry(self, pose, guess, step) -> bool:
         """The odometry gate (docs/method.md §6.1): a correction of odometry's
@@ -173,6 +182,16 @@ class FrontEnd:
         correction = between(pose, guess)
         return bool(math.hypot(correction[0], correction[1]) > gate[0] + share[0] * math.hypot(step[0], step[1])
                     or abs(correction[2]) > gate[1] + share[1] * abs(step[2]))
+
+    def _constrained(self, scan, pose, guess):
+        """The match where the scan pins it, the prediction where it does not
+        (runtime.degeneracy; docs/method.md §6.1); the next node's edge is weak along it."""
+        c = self.config.front_end
+        h = self.matcher.curvature(scan, self.reference, pose, c.curvature_step)
+        self.degeneracy = Degeneracy(h, c.degeneracy_ratio, c.degenerate_information)
+        if self.degeneracy.degenerate:
+            self.degenerate_matches += 1
+        return self.degeneracy.remap(pose, guess)
 
     def _recover(self, scan, pose, guess, have_odometry: bool):
         """The guided match lost track. With odometry, its prediction stands in (the next
@@ -213,7 +232,8 @@ class FrontEnd:
                 "initial_pose": self.initial_pose.copy(), "rel": self.rel.copy(),
                 "motion": self.motion.copy(), "last_odometry": self.last_odometry.copy(),
                 "keyframe": self.keyframe, "have_odometry": self.have_odometry,
-                "weak": self.weak, "lost_matches": self.lost_matches, "status": self.status}
+                "weak": self.weak, "lost_matches": self.lost_matches,
+                "degenerate_matches": self.degenerate_matches, "status": self.status}
 
     def restore(self, state: dict) -> None:
         """The state :meth:`state` gave, over a front end of the same configuration built on
@@ -233,6 +253,7 @@ class FrontEnd:
         self.last_odometry[:] = state["last_odometry"]
         self.have_odometry, self.weak = bool(state["have_odometry"]), bool(state["weak"])
         self.lost_matches, self.status = int(state["lost_matches"]), str(state["status"])
+        self.degenerate_matches = int(state["degenerate_matches"])
         self.keyframe = int(state["keyframe"])
         if self.keyframe >= 0:
             if not 0 <= self.keyframe < n:

@@ -28,16 +28,19 @@ from scipy.sparse.linalg import splu
 
 from runtime.config import OptimizerConfig
 from runtime.pose import wrap_angle_nb
-from runtime.pose_graph import PoseGraph, edge_error
+from runtime.pose_graph import LOOP, PoseGraph, edge_error
 from runtime.sparse_ldl import SparseLDL, permute_triplets
 
 
 @njit(cache=True)
-def assemble(poses, ij, z, info, rows, cols, vals, b):
+def assemble(poses, ij, z, info, kind, phi, exempt, rows, cols, vals, b):
     """Fill the triplets of H (36 per edge) and b; return χ² at the current poses.
 
     Node 0 is fixed: its rows and columns are sent to index -1 and dropped by the caller.
-    Unknown ``3(k−1)+d`` is component ``d`` of node ``k``.
+    Unknown ``3(k−1)+d`` is component ``d`` of node ``k``. With ``phi > 0`` every loop edge
+    (``kind`` LOOP) but ``exempt`` is scaled by dynamic covariance scaling (Agarwal et al.
+    2013): ``Ω ← s²Ω``, ``s = min(1, 2Φ/(Φ + eᵀΩe))`` — an edge that contradicts the rest of
+    the graph loses its pull instead of bending the map (docs/method.md §4.3).
     """
     b[:] = 0.0
     chi2 = 0.0
@@ -85,7 +88,14 @@ def assemble(poses, ij, z, info, rows, cols, vals, b):
             for c in range(3):
                 acc += info[k, a, c] * e[c]
             oe[a] = acc
-        chi2 += e[0] * oe[0] + e[1] * oe[1] + e[2] * oe[2]
+        own = e[0] * oe[0] + e[1] * oe[1] + e[2] * oe[2]
+        w = 1.0  # s² of dynamic covariance scaling
+        if phi > 0.0 and kind[k] == LOOP and k != exempt and own > phi:
+            s = 2.0 * phi / (phi + own)
+            w = s * s
+            for a in range(3):
+                oe[a] *= w
+        chi2 += w * own
         base = 36 * k
         oi = 3 * (i - 1)
         oj = 3 * (j - 1)
@@ -105,7 +115,7 @@ def assemble(poses, ij, z, info, rows, cols, vals, b):
                     idx = base + 9 * blk + 3 * r + c
                     rows[idx] = ro + r if ro >= 0 else -1
                     cols[idx] = co + c if co >= 0 else -1
-                    vals[idx] = acc
+                    vals[idx] = w * acc
         for r in range(3):
             ga = 0.0
             gb = 0.0
@@ -234,6 +244,7 @@ class GaussNewton:
         self._neg_b = np.zeros(unknowns)
         self.ldl = SparseLDL(max(graph.max_nodes - 1, 1), int(c.fill_ratio * len(self._data_buf)))
         self._pattern_key = None
+        self.exempt = -1
 
     def _pattern(self, rows, cols, size):
         """The upper triangle's CSC pattern and each triplet's slot in it, in buffers of the
@@ -253,7 +264,9 @@ class GaussNewton:
         size = 3 * (n - 1)
         rows, cols, vals = self._rows[: 36 * m], self._cols[: 36 * m], self._vals[: 36 * m]
         b = self._b[:size]
-        chi2 = assemble(g.poses[:n], g.ij[:m], g.z[:m], g.info[:m], rows, cols, vals, b)
+        phi = self.config.robust_loops or 0.0
+        chi2 = assemble(g.poses[:n], g.ij[:m], g.z[:m], g.info[:m], g.kind[:m], phi,
+                        self.exempt, rows, cols, vals, b)
         key = (id(g), n, g.revision)
         if key != self._pattern_key:  # new edge set: order, pattern and analysis again
             self._pattern_key = None
@@ -283,8 +296,10 @@ class GaussNewton:
         self.ldl.solve(self._neg_b[:size], dx)
         return dx
 
-    def optimize(self) -> OptimizeReport:
-        """Gauss–Newton until the relative decrease of χ² is below ``tolerance``."""
+    def optimize(self, exempt: int = -1) -> OptimizeReport:
+        """Gauss–Newton until the relative decrease of χ² is below ``tolerance``; edge
+        ``exempt`` keeps its full weight under the robust kernel (a loop closure on trial)."""
+        self.exempt = exempt
         g = self.graph
         t0 = time.perf_counter()
         if g.n_nodes < 2 or g.n_edges == 0:

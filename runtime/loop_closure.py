@@ -76,6 +76,64 @@ def propagate_covariance(cov_prev, pose_prev, z, z_cov, out):
     out[:, :] = jx @ cov_prev @ jx.T + jz @ z_cov @ jz.T
 
 
+@njit(cache=True)
+def polar_image(points, count, image):
+    """The nearest range per bearing bin of a scan in its own frame (``inf``: no return)."""
+    bins = image.shape[0]
+    image[:] = np.inf
+    for k in range(count):
+        r = math.hypot(points[k, 0], points[k, 1])
+        b = int((math.atan2(points[k, 1], points[k, 0]) + math.pi) * bins / (2 * math.pi)) % bins
+        if r < image[b]:
+            image[b] = r
+    return image
+
+
+@njit(cache=True)
+def visibility(points, counts, poses, first, last, frame, scan, n, x, y, t, tolerance, slope,
+               image, state, out):
+    """How the scans of nodes ``first..last`` saw the places where ``scan`` (at ``(x, y, t)`` in
+    node ``frame``'s frame) puts its points: ``out[0]`` points on a surface one of them saw
+    (within ``tolerance + slope·r``), ``out[1]`` points in space one of them saw through and
+    none saw a surface at — evidence against the alignment. Points no scan saw (behind what
+    they saw, or outside their view) count in neither (docs/method.md §5)."""
+    for k in range(n):
+        state[k] = 0
+    cf, sf = math.cos(poses[frame, 2]), math.sin(poses[frame, 2])
+    ct, st = math.cos(t), math.sin(t)
+    bins = image.shape[0]
+    for m in range(first, last + 1):
+        polar_image(points[m], counts[m], image)
+        # node m's pose in the frame's frame, then the map from the frame into node m's
+        dx, dy = poses[m, 0] - poses[frame, 0], poses[m, 1] - poses[frame, 1]
+        mx, my = cf * dx + sf * dy, -sf * dx + cf * dy
+        mt = poses[m, 2] - poses[frame, 2]
+        cm, sm = math.cos(mt), math.sin(mt)
+        for k in range(n):
+            if state[k] == 1:
+                continue
+            qx = x + ct * scan[k, 0] - st * scan[k, 1] - mx
+            qy = y + st * scan[k, 0] + ct * scan[k, 1] - my
+            px, py = cm * qx + sm * qy, -sm * qx + cm * qy
+            r = math.hypot(px, py)
+            b = int((math.atan2(py, px) + math.pi) * bins / (2 * math.pi)) % bins
+            seen = min(image[b], min(image[(b - 1) % bins], image[(b + 1) % bins]))
+            if not seen < np.inf:
+                continue
+            margin = tolerance + slope * r
+            if abs(r - seen) <= margin:
+                state[k] = 1
+            elif r < seen - margin:
+                state[k] = 2
+    out[0] = 0
+    out[1] = 0
+    for k in range(n):
+        if state[k] == 1:
+            out[0] += 1
+        elif state[k] == 2:
+            out[1] += 1
+
+
 class LoopCloser:
     """Buffers for candidate search (allocated once) and the closure statistics."""
 
@@ -110,6 +168,23 @@ class LoopCloser:
             if len(gated) >= c.max_candidates:
                 break
         return gated
+
+    def window(self, graph, node_cov, candidate: int, node: int, out) -> np.ndarray:
+        """The loop match's half-widths: 3σ of ``node``'s pose relative to ``candidate``'s (in
+        the candidate's frame, propagated along the chain), between ``search_window`` and
+        ``max_search_window``: a loop found after a long, weakly pinned stretch is searched as
+        widely as the drift may be."""
+        c = self.config
+        rel = node_cov[node] - node_cov[candidate]
+        rel = 0.5 * (rel + rel.T)
+        co, si = math.cos(graph.poses[candidate, 2]), math.sin(graph.poses[candidate, 2])
+        # variances of x and y in the candidate's frame (Rᵀ Σ R), and of the heading
+        vx = co * co * rel[0, 0] + 2 * co * si * rel[0, 1] + si * si * rel[1, 1]
+        vy = si * si * rel[0, 0] - 2 * co * si * rel[0, 1] + co * co * rel[1, 1]
+        for d, v in enumerate((vx, vy, rel[2, 2])):
+            out[d] = min(max(3.0 * math.sqrt(max(v, 0.0)), c.search_window[d]),
+                         max(c.max_search_window[d], c.search_window[d]))
+        return out
 
     def consistent(self, graph, edge: int, total_before: float) -> bool:
         """Step 3's test, after optimising with the new edge."""

@@ -87,9 +87,10 @@ def scan_to_map_cost(grid, meta, pts, n, x, y, t, half):
 
 
 @njit(cache=True)
-def inlier_fraction(field, meta, pts, n, x, y, t, max_cost):
-    """Share of the points whose per-point cost at ``ΔP`` is at most ``max_cost`` (with the
-    Cauchy field, ``log(1 + k²)`` counts points within ``k·c`` of the reference surface)."""
+def inlier_fraction(field, meta, pts, n, x, y, t, distance, slope, inv_c2):
+    """Share of the points within ``distance + slope·r`` of the reference surface at ``ΔP``
+    (``r``: the point's range; beams spread and graze farther out). ``inv_c2``: the field's
+    Cauchy kernel, ``1/c²`` (0: the field holds plain ``d²``)."""
     if n == 0:
         return 0.0
     c, s, gx0, gy0, last_x, last_y, far = _grid_frame(meta, x, y, t)
@@ -97,6 +98,43 @@ def inlier_fraction(field, meta, pts, n, x, y, t, max_cost):
     for i in range(n):
         gx = gx0 + c * pts[i, 0] - s * pts[i, 1]
         gy = gy0 + s * pts[i, 0] + c * pts[i, 1]
-        if lookup_grid(field, gx, gy, last_x, last_y, far) <= max_cost:
+        d = distance + slope * math.hypot(pts[i, 0], pts[i, 1])
+        limit = math.log1p(d * d * inv_c2) if inv_c2 > 0 else d * d
+        if lookup_grid(field, gx, gy, last_x, last_y, far) <= limit:
             inliers += 1
     return inliers / n
+
+
+@njit(cache=True, inline="always")
+def _cost(field, meta, pts, n, x, y, t):
+    return scan_to_scan_error(field, meta, pts, n, 1, x, y, t, KERNEL_CAUCHY)
+
+
+@njit(cache=True)
+def cost_hessian(field, meta, pts, n, x, y, t, h_xy, h_t, out):
+    """Central-difference Hessian (3 × 3, into ``out``) of the summed per-point cost at
+    ``ΔP``: how sharply the match is pinned in each direction. A plain corridor leaves it
+    nearly singular along the corridor (docs/method.md §6.1)."""
+    p0 = (x, y, t)
+    h = (h_xy, h_xy, h_t)
+    f0 = _cost(field, meta, pts, n, x, y, t)
+    for a in range(3):
+        for b in range(a, 3):
+            if a == b:
+                up = [p0[0], p0[1], p0[2]]
+                dn = [p0[0], p0[1], p0[2]]
+                up[a] += h[a]
+                dn[a] -= h[a]
+                v = (_cost(field, meta, pts, n, up[0], up[1], up[2]) - 2.0 * f0
+                     + _cost(field, meta, pts, n, dn[0], dn[1], dn[2])) / (h[a] * h[a])
+            else:
+                v = 0.0
+                for sa in (-1.0, 1.0):
+                    for sb in (-1.0, 1.0):
+                        q = [p0[0], p0[1], p0[2]]
+                        q[a] += sa * h[a]
+                        q[b] += sb * h[b]
+                        v += sa * sb * _cost(field, meta, pts, n, q[0], q[1], q[2])
+                v /= 4.0 * h[a] * h[b]
+            out[a, b] = v
+            out[b, a] = v

@@ -24,6 +24,7 @@ from runtime.distance_field import N_META, build_distance_field
 from runtime.local_map import build_local_map, robot_square
 from runtime.objectives import (
     KERNELS,
+    cost_hessian,
     inlier_fraction,
     scan_to_map_cost,
     scan_to_scan_error,
@@ -203,6 +204,7 @@ class ScanMatcher:
         self.settings = s
         self._out = np.zeros(N_OUT)
         self._box = np.zeros((2, 3))
+        self._hessian = np.zeros((3, 3))
 
     def state(self) -> dict:
         """The swarm's random stream and buffers, and the rejection threshold."""
@@ -271,9 +273,11 @@ class ScanMatcher:
         ref.ready = True
         return ref
 
-    def set_search_box(self, guess=None) -> None:
-        """Centre the search box on ``guess`` (e.g. odometry), else on no motion."""
+    def set_search_box(self, guess=None, window=None) -> None:
+        """Centre the search box on ``guess`` (e.g. odometry), else on no motion; ``window``:
+        its half-widths around the guess (default: ``guess_window``)."""
         lo, hi = self._box[0], self._box[1]
+        half = self._guess_window if window is None else window
         if guess is None:
             for d in range(3):
                 lo[d] = -self._window[d]
@@ -283,16 +287,17 @@ class ScanMatcher:
                 g = float(guess[d])
                 if not math.isfinite(g):
                     raise ValueError(f"initial guess has a non-finite component: {guess}")
-                lo[d] = g - self._guess_window[d]
-                hi[d] = g + self._guess_window[d]
+                lo[d] = g - half[d]
+                hi[d] = g + half[d]
 
-    def align_into(self, scan: PointScan, reference: ReferenceMaps, guess, out) -> None:
+    def align_into(self, scan: PointScan, reference: ReferenceMaps, guess, out,
+                   window=None) -> None:
         """Allocation-free Alg. 5: fills ``out`` (see ``R_*``) and updates the threshold."""
         if scan.count == 0:
             raise ValueError("current scan is empty")
         if not reference.ready:
             raise ValueError("reference maps were never built (call build_reference first)")
-        self.set_search_box(guess)
+        self.set_search_box(guess, window)
         align_kernel(
             self.optimizer.kind,
             self.optimizer.ws,
@@ -310,10 +315,12 @@ class ScanMatcher:
         )
         self.threshold.update(out[R_LAMBDA])
 
-    def align_scans(self, scan: PointScan, reference: ReferenceMaps, guess=None) -> MatchResult:
-        """Alg. 5: the pose of ``scan`` in ``reference``'s frame, and its error λ."""
+    def align_scans(self, scan: PointScan, reference: ReferenceMaps, guess=None,
+                    window=None) -> MatchResult:
+        """Alg. 5: the pose of ``scan`` in ``reference``'s frame, and its error λ; ``window``
+        overrides the half-widths of the box around ``guess``."""
         out = self._out
-        self.align_into(scan, reference, guess, out)
+        self.align_into(scan, reference, guess, out, window)
         return MatchResult(
             pose=out[R_X : R_T + 1].copy(),
             error=float(out[R_LAMBDA]),
@@ -323,11 +330,18 @@ class ScanMatcher:
             evaluations=int(out[R_EVALUATIONS]),
         )
 
+    def curvature(self, scan: PointScan, reference: ReferenceMaps, pose, step) -> np.ndarray:
+        """The Hessian of the summed per-point cost at ``pose`` (a 3 × 3 buffer, reused);
+        ``step``: the finite-difference steps (m, rad)."""
+        cost_hessian(reference.field, reference.meta, scan.buffer, scan.count, float(pose[0]),
+                     float(pose[1]), float(pose[2]), float(step[0]), float(step[1]), self._hessian)
+        return self._hessian
+
     def inlier_fraction(self, scan: PointScan, reference: ReferenceMaps, pose,
-                        distance: float) -> float:
-        """Share of ``scan``'s points within ``distance`` of the reference surface at ``pose``."""
-        c = self.config
-        d2 = distance * distance
-        cost = math.log1p(d2 / c.cauchy_scale**2) if c.kernel == "cauchy" else d2
+                        distance: float, slope: float = 0.0) -> float:
+        """Share of ``scan``'s points within ``distance`` (+ ``slope`` × the point's range) of
+        the reference surface at ``pose``."""
+        inv_c2 = self.settings[S_INV_C2] if self.config.kernel == "cauchy" else 0.0
         return float(inlier_fraction(reference.field, reference.meta, scan.buffer, scan.count,
-                                     float(pose[0]), float(pose[1]), float(pose[2]), cost))
+                                     float(pose[0]), float(pose[1]), float(pose[2]),
+                                     float(distance), float(slope), inv_c2))

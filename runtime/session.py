@@ -29,7 +29,7 @@ import numpy as np
 from runtime.writers import write_bytes_atomic
 
 FORMAT = "swarmslam-session"
-VERSION = 2
+VERSION = 3  # 3: loop edges carry their own information; degenerate-match count
 ARRAY = "__array__"  # marks, in the meta, a leaf stored as an archive entry
 
 

@@ -54,8 +54,20 @@ def _bench_slam(args) -> int:
             raise SystemExit(f"unknown dataset {d!r}; choose from {', '.join(LOGS)}")
     modes = {"both": (True, False), "odometry": (True,), "scans": (False,)}[args.modes]
     optimizers = tuple(o.strip() for o in args.optimizers.split(",") if o.strip())
+    seeds = tuple(int(v) for v in args.seeds.split(",") if v.strip())
     bench_slam(find_datasets(args.data), optimizers, logs, modes, args.limit, args.out, args.json,
-               config=_config(args, DEFAULT_PRESET))
+               config=_config(args, DEFAULT_PRESET), seeds=seeds)
+    return 0
+
+
+def _bench_generalization(args) -> int:
+    from scripts.bench.generalization import bench_generalization, select
+
+    cases = select([n.strip() for n in (args.cases or "").split(",") if n.strip()])
+    bench_generalization(cases, args.json, args.keep, _config(args, DEFAULT_PRESET),
+                         floor=not args.no_floor)
+    if args.json:
+        print(f"wrote {args.json}")
     return 0
 
 
@@ -115,6 +127,25 @@ def _replay(args) -> int:
         print(f"wrote {args.out}/map.pgm, map.yaml, map.png, trajectory.tum, graph.g2o, metrics.json")
     if m["status"] != "ok":
         print(f"status: {m['status']}")
+    return 0
+
+
+def _config_fields(args) -> int:
+    from scripts.config_doc import fields_markdown
+
+    sys.stdout.write(fields_markdown())
+    return 0
+
+
+def _simlog(args) -> int:
+    from scripts.simlog import write_simlog
+
+    r = write_simlog(args.out, args.site, args.seed, args.scanner, args.rate, args.odometry,
+                     args.format)
+    print(f"{r['scans']} scans over {r['seconds']:.0f} s and {r['metres']:.0f} m; odometry "
+          f"{r['odometry_error_end_m']:.2f} m / {r['odometry_error_end_deg']:.1f} deg off at "
+          f"the end; {r['relations_count']} relations")
+    print(f"wrote {r['log']}, {r['relations']}, {r['truth']}, {r['world']}")
     return 0
 
 
@@ -188,6 +219,8 @@ def build_parser() -> argparse.ArgumentParser:
     show.add_argument("--config", metavar="FILE", help="with this TOML file's changes")
     show.add_argument("--bare", action="store_true", help="without the comments")
     show.set_defaults(func=_config_show)
+    csub.add_parser("fields", help="every field as the Markdown tables of "
+                                   "docs/configuration.md").set_defaults(func=_config_fields)
 
     models = ["a1", "a2", "a3", "s1", "s2", "c1"]
     li = sub.add_parser("lidar", help="live SLAM from an RPLidar (or the emulator) at a fixed rate")
@@ -235,6 +268,20 @@ def build_parser() -> argparse.ArgumentParser:
     _config_options(rp, DEFAULT_PRESET)
     rp.set_defaults(func=_replay)
 
+    from swarmslam_sim.survey import ODOMETRY, SCANNERS, SITES
+
+    sl = sub.add_parser("simlog", help="a CARMEN log + relations + truth from a simulated survey")
+    sl.add_argument("out", help="log to write (.clf, or .clf.gz); relations, truth (TUM) and "
+                                "world go beside it")
+    sl.add_argument("--site", default="building", choices=SITES)
+    sl.add_argument("--seed", type=int, default=0, help="seeds the floor plan and every noise")
+    sl.add_argument("--scanner", default="sick-0.5", choices=list(SCANNERS))
+    sl.add_argument("--rate", type=float, default=10.0, help="scans per second")
+    sl.add_argument("--odometry", default="good", choices=list(ODOMETRY))
+    sl.add_argument("--format", default="auto", choices=["auto", "flaser", "robotlaser1"],
+                    help="laser lines (auto: FLASER for a 180° scanner, else ROBOTLASER1)")
+    sl.set_defaults(func=_simlog)
+
     bench = sub.add_parser("bench", help="benchmarks (JSON + table)")
     bsub = bench.add_subparsers(dest="benchmark", required=True)
     m = bsub.add_parser("matcher", help="scan matching on keyframe logs, no initial guess")
@@ -246,16 +293,27 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--seed", type=int, default=0)
     m.add_argument("--json", help="write results here (atomically)")
     m.set_defaults(func=_bench_matcher)
-    s = bsub.add_parser("slam", help="SLAM on the raw Intel/ACES logs, scored by relations")
+    s = bsub.add_parser("slam", help="SLAM on the raw Intel/ACES3/fr-clinic logs, scored by "
+                                     "relations over seeds")
     s.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
     s.add_argument("--optimizers", default="abc,pso,fa")
-    s.add_argument("--datasets", default="intel,aces")
+    s.add_argument("--datasets", default="intel,aces,clinic")
+    s.add_argument("--seeds", default="0,1,2", help="seeds per run (mean and worst reported)")
     s.add_argument("--modes", default="both", choices=["both", "odometry", "scans"])
     s.add_argument("--limit", type=int, help="only the first N scans of each log")
     s.add_argument("--out", help="keep each run's map, trajectory and graph here")
     s.add_argument("--json", help="write results here (atomically)")
     _config_options(s, DEFAULT_PRESET)
     s.set_defaults(func=_bench_slam)
+    ge = bsub.add_parser("generalization", help="SLAM on seeded simulated surveys, scored "
+                                                 "against the true poses")
+    ge.add_argument("--cases", help="comma-separated names or parts of names (default: all)")
+    ge.add_argument("--no-floor", action="store_true",
+                    help="skip the perfect-scan-matching floor (halves the time)")
+    ge.add_argument("--keep", metavar="DIR", help="keep the generated logs here")
+    ge.add_argument("--json", help="write results here (atomically)")
+    _config_options(ge, DEFAULT_PRESET)
+    ge.set_defaults(func=_bench_generalization)
     pg = bsub.add_parser("posegraph", help="Gauss-Newton on the g2o benchmark graphs")
     pg.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
     pg.add_argument("--repeats", type=int, default=5)

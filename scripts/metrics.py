@@ -40,8 +40,15 @@ def is_failure(e_trans, e_rot, max_trans: float = 0.3, max_rot: float = 0.1):
     return (np.asarray(e_trans) > max_trans) | (np.asarray(e_rot) > max_rot)
 
 
-def kummerle(stamps, poses, relations, tolerance: float = 1e-4) -> dict:
-    """Eqs. 22–23 for the relations whose two timestamps are both in the trajectory.
+LOCAL_GAP = 300.0  # s: relations with endpoints closer in time are "local" (datasets README)
+
+
+def kummerle(stamps, poses, relations, tolerance: float = 1e-4,
+             local_gap: float = LOCAL_GAP) -> dict:
+    """Eqs. 22–23 for the relations whose two timestamps are both in the trajectory, over all
+    of them and apart for local (endpoints < ``local_gap`` s apart) and global ones
+    (``eT_local``, ``eR_local_deg``, ``relations_local``, likewise ``_global``; NaN-free: a
+    part with no relation is left out).
 
     ``stamps`` and ``poses`` are the estimated trajectory (one pose per scan); a relation's
     timestamp matches a scan within ``tolerance`` seconds.
@@ -65,7 +72,7 @@ def kummerle(stamps, poses, relations, tolerance: float = 1e-4) -> dict:
     estimated = between(poses[j[ok]], poses[i[ok]])  # δ_ij = x_j ⊖ x_i
     e_t, e_r = relative_errors(estimated, relations.delta[ok])
     e_r = np.degrees(e_r)
-    return {
+    out = {
         "eT": float(np.mean(e_t)),
         "eT_std": float(np.std(e_t)),
         "eR_deg": float(np.mean(e_r)),
@@ -73,3 +80,12 @@ def kummerle(stamps, poses, relations, tolerance: float = 1e-4) -> dict:
         "relations_used": int(ok.sum()),
         "relations_total": int(len(relations)),
     }
+    local = np.abs(relations.t2[ok] - relations.t1[ok]) < local_gap
+    for name, part in (("local", local), ("global", ~local)):
+        if np.any(part):
+            out.update({f"eT_{name}": float(np.mean(e_t[part])),
+                        f"eT_{name}_std": float(np.std(e_t[part])),
+                        f"eR_{name}_deg": float(np.mean(e_r[part])),
+                        f"eR_{name}_std": float(np.std(e_r[part])),
+                        f"relations_{name}": int(part.sum())})
+    return out

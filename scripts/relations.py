@@ -37,3 +37,10 @@ def read_relations(path) -> Relations:
         raise RelationsFormatError(path, 0, "t1", "the file has no relations")
     a = np.array(rows)
     return Relations(a[:, 0], a[:, 1], a[:, [2, 3, 7]])
+
+
+def relations_text(t1, t2, delta) -> str:
+    """Relations as Kümmerle's files have them (``z roll pitch`` zero); floats written in
+    their shortest exact form, so a reader gets back the very numbers."""
+    return "".join(f"{float(a)!r} {float(b)!r} {float(x)!r} {float(y)!r} 0 0 0 {float(yaw)!r}\n"
+                   for a, b, (x, y, yaw) in zip(t1, t2, np.asarray(delta, float).reshape(-1, 3)))

@@ -52,6 +52,15 @@ def replay(log_path, relations_path=None, optimizer: str | None = None, odometry
     """Every scan of the log through :class:`SlamRuntime`, one tick each, as fast as it goes.
     The default schedule is lockstep (the whole back end every tick, as ``GraphSlam.step``);
     ``budgeted`` slices it as on a robot. ``optimizer`` overrides ``config``'s."""
+    return replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, seed,
+                      config, label, schedule)[0]
+
+
+def replay_run(log_path, relations_path=None, optimizer: str | None = None, odometry=True,
+               out_dir=None, limit=None, seed=0, config: SlamConfig | None = None,
+               label="replay", schedule: str = "lockstep", before_scan=None):
+    """:func:`replay`, returning ``(metrics, runtime)``; ``before_scan(k, runtime)`` is called
+    before scan ``k`` is processed (benchmarks use it to follow the run)."""
     log = read_carmen(log_path)
     relations = read_relations(relations_path) if relations_path else None
     lasers = log.lasers[:limit] if limit else log.lasers
@@ -64,6 +73,8 @@ def replay(log_path, relations_path=None, optimizer: str | None = None, odometry
     start = time.perf_counter()
     for k, record in enumerate(lasers):
         robot_frame_scan(record, scan)
+        if before_scan is not None:
+            before_scan(k, runtime)
         t0 = time.perf_counter()
         runtime.process(scan, record.odometry if odometry else None, record.timestamp)
         latencies[k] = time.perf_counter() - t0
@@ -84,6 +95,7 @@ def replay(log_path, relations_path=None, optimizer: str | None = None, odometry
         "loops_rejected_match": slam.back_end.loops.rejected_match,
         "loops_rejected_consistency": slam.back_end.loops.rejected_consistency,
         "matches_recovered": slam.front_end.lost_matches,
+        "matches_degenerate": slam.front_end.degenerate_matches,
         "wall_seconds": wall,
         "data_seconds": data_seconds,
         "real_time_factor": data_seconds / wall if wall > 0 else float("inf"),
@@ -97,4 +109,4 @@ def replay(log_path, relations_path=None, optimizer: str | None = None, odometry
     if out_dir is not None:
         write_results(slam, out_dir)
         write_json_atomic(Path(out_dir) / "metrics.json", metrics)
-    return metrics
+    return metrics, runtime

@@ -1,4 +1,6 @@
-"""Seeded procedural worlds: rooms off a corridor, a maze, open space with clutter.
+"""Seeded procedural worlds: rooms off a corridor, a maze, open space with clutter, and the
+building-scale floors of the generalization suite (a building with corridor loops, a long
+featureless corridor ring, a hall wider than a scanner's reach).
 
 Each generator is a pure function of its seed, so a seed names a world. Obstacles keep a
 clearance around the start pose so that an episode never begins in collision.
@@ -114,4 +116,106 @@ def clutter(seed: int = 0, size=(14.0, 14.0), obstacles: int = 40) -> World:
     return World(f"clutter-{seed}", np.array(segs, float), (-0.5, -0.5, w + 0.5, h + 0.5), start)
 
 
-GENERATORS = {"rooms": rooms, "maze": maze, "clutter": clutter}
+def _rect(x0, y0, x1, y1):
+    return [(x0, y0, x1, y0), (x1, y0, x1, y1), (x1, y1, x0, y1), (x0, y1, x0, y0)]
+
+
+def _doors(rng, a, b, spacing, width=(0.9, 1.2)):
+    """Door intervals along ``[a, b]``, one per ``spacing`` (range) metres, seeded."""
+    doors, pos = [], a + rng.uniform(1.0, spacing[0])
+    while pos + width[1] < b - 1.0:
+        w = rng.uniform(*width)
+        doors.append((pos, pos + w))
+        pos += w + rng.uniform(*spacing)
+    return doors
+
+
+def _room_row(rng, segs, a, b, y_wall, depth, horizontal, spacing=(3.5, 6.0)):
+    """Partition walls every ``spacing`` metres along ``[a, b]``: rooms ``depth`` deep
+    behind the wall at ``y_wall`` (``depth`` signed: the side the rooms lie on), a box or two
+    of furniture in each."""
+    pos = a
+    while pos < b - 2.0:
+        nxt = min(pos + rng.uniform(*spacing), b)
+        if b - nxt < 2.0:
+            nxt = b
+        if nxt < b:
+            segs.append((nxt, y_wall, nxt, y_wall + depth) if horizontal
+                        else (y_wall, nxt, y_wall + depth, nxt))
+        lo, hi = sorted((y_wall, y_wall + depth))
+        for _ in range(rng.integers(1, 3)):
+            w, h = rng.uniform(0.4, 1.1, size=2)
+            u = rng.uniform(pos + 0.3 + w, nxt - 0.3 - w)
+            v = rng.uniform(lo + 0.3 + h, hi - 0.3 - h)
+            segs += box_segments(*((u, v) if horizontal else (v, u)), w, h, rng.uniform(0, math.pi))
+        pos = nxt
+
+
+def building(seed: int = 0, size=(36.0, 22.0), room_depth: float = 4.0,
+             corridor: float = 2.0) -> World:
+    """A building floor: a ring corridor (a 76 m loop at the default size) between rooms on
+    the outer walls and a core of rooms, crossed in the middle by a second corridor (two
+    shorter loops); doors into every room, furniture inside."""
+    rng = np.random.default_rng(seed)
+    w, h = size
+    d, c = room_depth, corridor
+    segs = _outline(w, h)
+    xm = w / 2  # the cross corridor's centre
+    # The corridor's outer walls (rooms behind them, on the building's outline).
+    for y, depth in ((d, -d), (h - d, d)):
+        segs += _wall_with_doors(d, w - d, y, _doors(rng, d, w - d, (3.0, 6.0)), True)
+        _room_row(rng, segs, 0.0, w, y, depth, True)
+    for x, depth in ((d, -d), (w - d, d)):
+        segs += _wall_with_doors(d, h - d, x, _doors(rng, d, h - d, (3.0, 6.0)), False)
+        _room_row(rng, segs, d, h - d, x, depth, False)
+    # The core: two blocks of rooms either side of the cross corridor.
+    y0, y1 = d + c, h - d - c
+    for x0, x1 in ((d + c, xm - c / 2), (xm + c / 2, w - d - c)):
+        for y, depth in ((y0, (y1 - y0) / 2), (y1, -(y1 - y0) / 2)):
+            segs += _wall_with_doors(x0, x1, y, _doors(rng, x0, x1, (3.0, 5.0)), True)
+            _room_row(rng, segs, x0, x1, y, depth, True, spacing=(3.0, 4.5))
+        segs += [(x0, y0, x0, y1), (x1, y0, x1, y1)]
+    start = (d + c / 2, d + c / 2, 0.0)
+    return World(f"building-{seed}", np.array(segs, float), (-0.5, -0.5, w + 0.5, h + 0.5), start)
+
+
+def corridor(seed: int = 0, size=(60.0, 10.0), width: float = 2.0) -> World:
+    """A ring of long, plain corridors (a 132 m loop at the default size) around a closed
+    core; a shallow door recess every 8–16 m is all that breaks the walls."""
+    rng = np.random.default_rng(seed)
+    w, h = size
+    segs = []
+    for x0, y0, x1, y1, out in ((0, 0, w, h, True), (width, width, w - width, h - width, False)):
+        for horizontal, fixed, a, b in ((True, y0, x0, x1), (True, y1, x0, x1),
+                                        (False, x0, y0, y1), (False, x1, y0, y1)):
+            doors = _doors(rng, a, b, (8.0, 16.0))
+            segs += _wall_with_doors(a, b, fixed, doors, horizontal)
+            # the recess behind each door: 0.3 m deep, away from the corridor
+            sign = (-1 if fixed == (y0 if horizontal else x0) else 1) * (1 if out else -1)
+            for u0, u1 in doors:
+                depth = fixed + 0.3 * sign
+                segs += ([(u0, fixed, u0, depth), (u0, depth, u1, depth), (u1, depth, u1, fixed)]
+                         if horizontal else
+                         [(fixed, u0, depth, u0), (depth, u0, depth, u1), (depth, u1, fixed, u1)])
+    start = (width / 2, width / 2, 0.0)
+    return World(f"corridor-{seed}", np.array(segs, float), (-1.0, -1.0, w + 1.0, h + 1.0),
+                 start)
+
+
+def hall(seed: int = 0, size=(40.0, 26.0), pillar_spacing: float = 9.0) -> World:
+    """A hall wider than a 12 m scanner's reach: bare walls, a grid of 0.5 m pillars and a few
+    crates."""
+    rng = np.random.default_rng(seed)
+    w, h = size
+    segs = _outline(w, h)
+    for px in np.arange(pillar_spacing / 2 + 2.0, w - 2.0, pillar_spacing):
+        for py in np.arange(pillar_spacing / 2 + 1.0, h - 2.0, pillar_spacing):
+            segs += box_segments(px, py, 0.5, 0.5, 0.0)
+    start = (w / 4, h / 2 - 3.5, 0.0)
+    for x0, x1 in ((1.0, w / 4 - 3.0), (3 * w / 4 + 3.0, w - 1.0)):  # crates off the floor's middle
+        _place_boxes(rng, segs, 3, (x0, 1.0, x1, h - 1.0), (0.5, 1.5), keep_clear=[])
+    return World(f"hall-{seed}", np.array(segs, float), (-0.5, -0.5, w + 0.5, h + 0.5), start)
+
+
+GENERATORS = {"rooms": rooms, "maze": maze, "clutter": clutter, "building": building,
+              "corridor": corridor, "hall": hall}

@@ -114,10 +114,10 @@ def test_config_show_prints_the_defaults_and_a_file_changes_one_field(tmp_path, 
     assert main(["config", "show", "--bare"]) == 0
     assert from_toml(capsys.readouterr().out) == SlamConfig()
     path = tmp_path / "mine.toml"
-    path.write_text("[loop_closure]\nmin_inliers = 0.7\n")
+    path.write_text("[loop_closure]\nmin_overlap = 0.4\n")
     assert main(["config", "show", "rplidar-a2", "--config", str(path)]) == 0
     shown = from_toml(capsys.readouterr().out)
-    assert shown == override(preset("rplidar-a2"), {"loop_closure.min_inliers": 0.7})
+    assert shown == override(preset("rplidar-a2"), {"loop_closure.min_overlap": 0.4})
 
 
 def test_a_bad_config_file_is_a_clear_error_from_the_cli(tmp_path, capsys):

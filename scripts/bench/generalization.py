@@ -1,0 +1,236 @@
+"""``swarmslam bench generalization``: the SLAM, with its defaults, on simulated surveys it was
+never tuned on, scored against the simulator's true poses (docs/method.md §7).
+
+Each case is a seeded ``swarmslam simlog`` (a floor, a scanner, a scan rate, an odometry) that
+is replayed exactly as a user replays a log (``swarmslam replay LOG --relations FILE``). Per
+case: the Kümmerle errors ``eT``/``eR_deg`` over the sampled relations; ``ate_rmse_m`` (every
+scan's position after the rigid fit of the whole trajectory onto the truth); the accepted loop
+closures, their ``loop_precision`` (a closure is correct if its transform is within 0.2 m and
+2° of the truth) and ``loop_recall`` (of the nodes that truly revisit an earlier place, the
+share tied to it by a correct closure); the real-time factor; and the **floor**: the same case
+with every alignment started at the true relative pose (the swarm never misses the right
+basin; the objective, the noise and the graph do the rest) — what better global search could
+reach.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from runtime.config import SlamConfig
+from runtime.pose import between
+from runtime.pose_graph import LOOP
+from runtime.writers import write_json_atomic
+from scripts.replay import replay_run
+from scripts.simlog import write_simlog
+from scripts.tum import read_tum
+
+CORRECT_LOOP = (0.2, math.radians(2.0))  # m, rad
+REVISIT = (1.0, math.radians(90.0), 30.0)  # m, rad apart in heading, s apart in time
+
+
+@dataclass(frozen=True)
+class Case:
+    site: str
+    scanner: str
+    rate_hz: float
+    odometry: str  # good, noisy, biased
+    use_odometry: bool = True
+    seed: int = 0
+
+    @property
+    def name(self) -> str:
+        odo = self.odometry if self.use_odometry else "scans-only"
+        return f"{self.site}-{self.scanner}-{self.rate_hz:g}hz-{odo}-s{self.seed}"
+
+
+# The fixed suite: loops of 60–132 m, plain corridors, a hall wider than 12 m of reach; 180°
+# 80 m scanners at 0.5° and 1° and 360° RPLidars; 2–15 Hz; good, noisy and biased odometry,
+# and scans only.
+CASES = (
+    Case("building", "sick-0.5", 10.0, "good"),
+    Case("building", "sick-0.5", 10.0, "noisy"),
+    Case("building", "sick-0.5", 10.0, "biased"),
+    Case("building", "sick-0.5", 10.0, "good", use_odometry=False),
+    Case("building", "sick-1", 2.0, "good", seed=1),
+    Case("building", "sick-1", 4.7, "biased", seed=2),
+    Case("building", "rplidar-a1", 5.5, "noisy", seed=3),
+    Case("building", "rplidar-a2", 15.0, "good", seed=4),
+    Case("corridor", "sick-1", 10.0, "good"),
+    Case("corridor", "rplidar-a1", 5.5, "biased", seed=1),
+    Case("hall", "rplidar-a1", 5.5, "good"),
+    Case("hall", "sick-0.5", 4.7, "noisy", seed=1),
+)
+
+
+def rigid_ate(estimated, truth) -> float:
+    """RMSE of positions after the least-squares rotation and translation of ``estimated``
+    onto ``truth`` (Umeyama without scale)."""
+    p, q = np.asarray(estimated, float)[:, :2], np.asarray(truth, float)[:, :2]
+    pc, qc = p - p.mean(0), q - q.mean(0)
+    u, _, vt = np.linalg.svd(pc.T @ qc)
+    d = np.sign(np.linalg.det(vt.T @ u.T))
+    r = vt.T @ np.diag([1.0, d]) @ u.T
+    return float(np.sqrt(np.mean(np.sum((pc @ r.T - qc) ** 2, axis=1))))
+
+
+def loop_scores(graph, node_truth, config: SlamConfig, stamps) -> dict:
+    """Precision of the kept loop closures and recall over the nodes that truly revisit."""
+    n, e = graph.n_nodes, graph.n_edges
+    loops = np.nonzero(graph.kind[:e] == LOOP)[0]
+    correct_nodes = set()
+    correct = 0
+    for k in loops:
+        i, j = graph.ij[k]
+        err = between(graph.z[k], between(node_truth[j], node_truth[i]))
+        if math.hypot(err[0], err[1]) <= CORRECT_LOOP[0] and abs(err[2]) <= CORRECT_LOOP[1]:
+            correct += 1
+            correct_nodes.add(int(j))
+    radius, heading, gap = REVISIT
+    exclude = config.loop_closure.exclude_recent
+    revisits = []
+    for j in range(n):
+        earlier = np.arange(max(j - exclude, 0))
+        if not len(earlier):
+            continue
+        d = np.hypot(*(node_truth[earlier, :2] - node_truth[j, :2]).T)
+        dth = np.abs(np.angle(np.exp(1j * (node_truth[earlier, 2] - node_truth[j, 2]))))
+        if np.any((d <= radius) & (dth <= heading) & (stamps[j] - stamps[earlier] >= gap)):
+            revisits.append(j)
+    hit = sum(1 for j in revisits if j in correct_nodes)
+    return {"loops_accepted": int(len(loops)), "loops_correct": int(correct),
+            "loop_precision": correct / len(loops) if len(loops) else 1.0,
+            "revisit_nodes": len(revisits),
+            "loop_recall": hit / len(revisits) if revisits else 1.0}
+
+
+class TruthOracle:
+    """Starts every alignment of a run at the true relative pose (the floor's "perfect scan
+    matching"): it replaces the guess the front end and the loop search pass to their
+    matchers."""
+
+    def __init__(self, slam, stamps, truth):
+        self.slam, self.stamps, self.truth = slam, np.asarray(stamps), np.asarray(truth)
+        self.scan = 0
+        self.loop = None  # (candidate, node) while the back end aligns a loop
+        fe, be = slam.front_end, slam.back_end
+        fe_align, be_align = fe.matcher.align_scans, be.matcher.align_scans
+        align_loop = be.align_loop
+
+        def front(scan, reference, guess=None):
+            keyframe = self._true(self.slam.graph.stamps[fe.keyframe])
+            return fe_align(scan, reference, between(self.truth[self.scan], keyframe))
+
+        def back(scan, reference, guess=None):
+            c, n = self.loop
+            return be_align(scan, reference, between(self._true(self.slam.graph.stamps[n]),
+                                                     self._true(self.slam.graph.stamps[c])))
+
+        def loop(candidate, node):
+            self.loop = (candidate, node)
+            return align_loop(candidate, node)
+
+        fe.matcher.align_scans, be.matcher.align_scans, be.align_loop = front, back, loop
+
+    def _true(self, stamp):
+        return self.truth[int(np.argmin(np.abs(self.stamps - stamp)))]
+
+    def before_scan(self, k, runtime):
+        self.scan = k
+
+
+def run_case(case: Case, work: Path, config: SlamConfig | None = None, floor: bool = True,
+             echo=print) -> dict:
+    log = work / f"{case.name}.clf.gz"
+    made = write_simlog(log, case.site, case.seed, case.scanner, case.rate_hz, case.odometry)
+    stamps, truth = read_tum(made["truth"])
+    result = {"case": case.name, **asdict(case), "scans": made["scans"],
+              "metres": round(made["metres"], 1),
+              "odometry_error_end_m": made["odometry_error_end_m"]}
+    for label, oracle in (("", False), ("floor_", True)) if floor else (("", False),):
+        hook = {}
+
+        def before_scan(k, runtime, hook=hook, oracle=oracle):
+            if oracle and "oracle" not in hook:
+                hook["oracle"] = TruthOracle(runtime.slam, stamps, truth)
+            if oracle:
+                hook["oracle"].before_scan(k, runtime)
+
+        m, runtime = replay_run(log, made["relations"], None, case.use_odometry, None, None,
+                                case.seed, config, label=f"{case.name}{' floor' if oracle else ''}",
+                                before_scan=before_scan)
+        slam = runtime.slam
+        est_stamps, est = slam.trajectory()
+        g = slam.graph
+        node_truth = np.array([truth[int(np.argmin(np.abs(stamps - t)))]
+                               for t in g.stamps[: g.n_nodes]])
+        scores = loop_scores(g, node_truth, slam.config, g.stamps[: g.n_nodes])
+        row = {"eT": m["eT"], "eR_deg": m["eR_deg"], "ate_rmse_m": rigid_ate(est, truth),
+               **scores, "real_time_factor": m["real_time_factor"],
+               "matches_recovered": m["matches_recovered"]}
+        result.update({f"{label}{k}": v for k, v in row.items()})
+    if floor:
+        result["eT_over_floor"] = result["eT"] / max(result["floor_eT"], 1e-9)
+    echo(format_row(result))
+    return result
+
+
+def bench_generalization(cases=CASES, json_path=None, work=None, config=None, floor=True,
+                         echo=print) -> dict:
+    results = {"benchmark": "generalization", "cases": []}
+    echo(format_header(floor))
+    with tempfile.TemporaryDirectory(prefix="swarmslam-gen-") as tmp:
+        folder = Path(work) if work else Path(tmp)
+        folder.mkdir(parents=True, exist_ok=True)
+        for case in cases:
+            results["cases"].append(run_case(case, folder, config, floor, echo))
+    runs = results["cases"]
+    results["summary"] = {
+        "worst_loop_precision": min(r["loop_precision"] for r in runs),
+        "mean_loop_recall": float(np.mean([r["loop_recall"] for r in runs])),
+        "worst_eT_over_floor": max(r["eT_over_floor"] for r in runs) if floor else None,
+        "mean_ate_rmse_m": float(np.mean([r["ate_rmse_m"] for r in runs])),
+    }
+    echo(format_summary(results["summary"]))
+    if json_path:
+        write_json_atomic(json_path, results)
+    return results
+
+
+def format_header(floor: bool) -> str:
+    head = (f"{'case':<44} {'eT m':>7} {'eR deg':>7} {'ATE m':>7} {'loops':>5} {'prec':>5} "
+            f"{'recall':>6} {'x rt':>5}" + (f" {'floor eT':>8} {'ratio':>5}" if floor else ""))
+    return head + "\n" + "-" * len(head)
+
+
+def format_row(r) -> str:
+    line = (f"{r['case']:<44} {r['eT']:7.4f} {r['eR_deg']:7.3f} {r['ate_rmse_m']:7.3f} "
+            f"{r['loops_accepted']:5d} {r['loop_precision']:5.2f} {r['loop_recall']:6.2f} "
+            f"{r['real_time_factor']:5.1f}")
+    if "floor_eT" in r:
+        line += f" {r['floor_eT']:8.4f} {r['eT_over_floor']:5.2f}"
+    return line
+
+
+def format_summary(s) -> str:
+    text = (f"worst loop precision {s['worst_loop_precision']:.3f}, mean recall "
+            f"{s['mean_loop_recall']:.3f}, mean ATE {s['mean_ate_rmse_m']:.3f} m")
+    if s["worst_eT_over_floor"] is not None:
+        text += f", worst eT / floor {s['worst_eT_over_floor']:.2f}"
+    return text
+
+
+def select(names) -> tuple[Case, ...]:
+    """Cases by name or by a part of it (``building``, ``rplidar``)."""
+    if not names:
+        return CASES
+    chosen = tuple(c for c in CASES if any(n in c.name for n in names))
+    if not chosen:
+        raise ValueError(f"no case matches {', '.join(names)}; cases: "
+                         + ", ".join(c.name for c in CASES))
+    return chosen

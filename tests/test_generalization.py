@@ -1,0 +1,202 @@
+"""The generalization suite's parts: simulated surveys and their logs, the loop and trajectory
+scores, and the SLAM on a generated building: a 76 m loop closed after biased odometry, a false
+loop constraint that does not bend the map, a corridor the matcher cannot pin along its axis."""
+
+import math
+
+import numpy as np
+import pytest
+
+from runtime.config import SlamConfig, override
+from runtime.degeneracy import Degeneracy
+from runtime.graph_optimizer import GaussNewton
+from runtime.loop_closure import visibility
+from runtime.pose import between, compose
+from runtime.pose_graph import LOOP
+from runtime.scan import PointScan
+from runtime.scan_matcher import ScanMatcher
+from runtime.slam import GraphSlam
+from scripts.bench.generalization import CASES, loop_scores, rigid_ate, select
+from scripts.carmen import read_carmen
+from scripts.relations import read_relations
+from scripts.simlog import log_text, sample_relations, write_simlog
+from swarmslam_sim.survey import Site, run_survey, site
+
+
+@pytest.fixture(scope="module")
+def loop_run():
+    """One lap of the building's 76 m ring and 12 m more, 181-beam 180° scans at 5 Hz, the
+    right wheel 2% larger than the odometry assumes."""
+    place = site("building", seed=0)
+    route = place.route[:6].copy()
+    route[-1] = route[0] + (12.0, 0.0)  # past the start again: the revisit
+    survey = run_survey(Site(place.world, route), "sick-1", 5.0, "biased", seed=0)
+    slam = GraphSlam(SlamConfig(), seed=0)
+    scan = PointScan(400)
+    for t, odo, ranges in zip(survey.stamps, survey.odometry, survey.ranges):
+        scan.set_ranges(ranges, survey.angles, 0.05, survey.lidar.max_range)
+        slam.step(scan, odo, float(t))
+    return survey, slam
+
+
+def _truth_in_map_frame(survey):
+    return between(survey.true_poses, survey.true_poses[0])
+
+
+def test_a_generated_76_m_loop_closes_despite_biased_odometry(loop_run):
+    survey, slam = loop_run
+    truth = _truth_in_map_frame(survey)
+    odometry = between(survey.odometry, survey.odometry[0])
+    odo_end = between(odometry[-1], truth[-1])
+    assert math.hypot(odo_end[0], odo_end[1]) > 2.0  # the odometry alone is far off
+    assert slam.loops_closed > 0
+    _, poses = slam.trajectory()
+    end = between(poses[-1], truth[-1])
+    assert math.hypot(end[0], end[1]) < 0.2
+    assert abs(end[2]) < math.radians(2.0)
+
+
+def test_a_false_loop_constraint_does_not_bend_the_map(loop_run):
+    _, slam = loop_run
+    g = slam.graph
+    before = g.poses[: g.n_nodes].copy()
+    i, j = 3, g.n_nodes // 2  # far apart on the ring
+    wrong = between(g.poses[j], g.poses[i]) + np.array([2.0, -1.5, 0.4])
+    g.add_edge(i, j, wrong, slam.front_end.information(), LOOP)
+    slam.back_end.optimizer.optimize()
+    moved = np.hypot(*(g.poses[: g.n_nodes, :2] - before[:, :2]).T)
+    assert moved.max() < 0.1
+    # the same edge without the robust kernel bends the map by metres
+    g.poses[: g.n_nodes] = before
+    GaussNewton(g).optimize()
+    assert np.hypot(*(g.poses[: g.n_nodes, :2] - before[:, :2]).T).max() > 0.5
+
+
+def test_the_suites_relations_are_the_true_relative_poses(tmp_path):
+    made = write_simlog(tmp_path / "hall.clf", "hall", seed=3, lidar="rplidar-a1", rate_hz=4.0)
+    survey = run_survey(site("hall", 3), "rplidar-a1", 4.0, "good", seed=3)
+    relations = read_relations(made["relations"])
+    stamps = list(survey.stamps)
+    i = np.array([stamps.index(t) for t in relations.t1])
+    j = np.array([stamps.index(t) for t in relations.t2])
+    exact = between(survey.true_poses[j], survey.true_poses[i])
+    assert np.array_equal(relations.delta, exact)  # bit for bit, not approximately
+    assert np.any(relations.t2 - relations.t1 >= 60.0)  # revisits, not only short ones
+    assert np.any(relations.t2 - relations.t1 <= 3.0)
+    log = read_carmen(made["log"])
+    assert len(log.lasers) == len(survey.stamps)
+    assert np.allclose([r.odometry for r in log.lasers], survey.odometry)
+    np.testing.assert_allclose(log.lasers[10].ranges, survey.ranges[10], atol=5e-4)
+    np.testing.assert_allclose(log.lasers[10].angles, survey.angles, atol=1e-12)
+
+
+def test_simlog_writes_flaser_for_half_turn_scanners_and_is_repeatable(tmp_path):
+    survey = run_survey(site("hall", 0), "sick-0.5", 2.0, "noisy", seed=1)
+    text = log_text(survey)
+    assert text.count("\nFLASER 361 ") == len(survey.stamps)
+    assert log_text(run_survey(site("hall", 0), "sick-0.5", 2.0, "noisy", seed=1)) == text
+    with pytest.raises(ValueError, match="FLASER"):
+        log_text(run_survey(site("hall", 0), "rplidar-a1", 2.0, "good", seed=1), "flaser")
+
+
+def test_biased_odometry_turns_the_way_the_larger_wheel_makes_it():
+    survey = run_survey(site("corridor", 0), "sick-1", 2.0, "biased", seed=0)
+    drift = between(survey.odometry[40], survey.true_poses[40])[2]
+    assert drift < -0.05  # a larger right wheel: the odometry under-counts left turns
+
+
+def test_relation_sampling_takes_short_ones_along_the_path_and_long_ones_across_revisits():
+    stamps = np.arange(0, 200, 0.5)
+    poses = np.c_[np.cos(stamps / 100 * 2 * np.pi) * 10, np.sin(stamps / 100 * 2 * np.pi) * 10,
+                  stamps / 100 * 2 * np.pi + np.pi / 2]
+    ij, delta = sample_relations(stamps, poses, np.random.default_rng(0))
+    gaps = stamps[ij[:, 1]] - stamps[ij[:, 0]]
+    assert np.all(gaps > 0)
+    assert np.any(gaps >= 60) and np.any(gaps <= 3)
+    np.testing.assert_array_equal(delta, between(poses[ij[:, 1]], poses[ij[:, 0]]))
+
+
+def test_loop_scores_count_a_closure_correct_only_near_the_truth():
+    from runtime.pose_graph import PoseGraph
+
+    truth = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0.5, 0.1, 0.05]], float)
+    g = PoseGraph(4, 4)
+    for k, p in enumerate(truth):
+        g.add_node(p, float(k) * 100)
+    g.add_edge(0, 3, between(truth[3], truth[0]), np.eye(3), LOOP)  # right
+    g.add_edge(1, 3, between(truth[3], truth[1]) + (0.5, 0, 0), np.eye(3), LOOP)  # 0.5 m off
+    config = override(SlamConfig(), {"loop_closure.exclude_recent": 1})
+    s = loop_scores(g, truth, config, g.stamps[:4])
+    assert s["loops_accepted"] == 2 and s["loops_correct"] == 1
+    assert s["loop_precision"] == 0.5
+    assert s["revisit_nodes"] == 1 and s["loop_recall"] == 1.0
+
+
+def test_rigid_ate_ignores_a_rigid_motion_and_measures_the_rest():
+    rng = np.random.default_rng(0)
+    truth = np.c_[rng.uniform(-5, 5, (50, 2)), np.zeros(50)]
+    moved = compose(np.array([3.0, -2.0, 0.7]), truth)
+    assert rigid_ate(moved, truth) < 1e-9
+    noisy = moved + np.c_[rng.normal(0, 0.1, (50, 2)), np.zeros(50)]
+    assert 0.05 < rigid_ate(noisy, truth) < 0.2
+
+
+def test_the_suite_covers_what_unseen_logs_have():
+    names = " ".join(c.name for c in CASES)
+    for part in ("building", "corridor", "hall", "sick-0.5", "sick-1", "rplidar-a1",
+                 "rplidar-a2", "good", "noisy", "biased", "scans-only"):
+        assert part in names
+    rates = [c.rate_hz for c in CASES]
+    assert min(rates) <= 2.0 and max(rates) >= 15.0
+    assert select(["hall"]) == tuple(c for c in CASES if c.site == "hall")
+    with pytest.raises(ValueError, match="no case"):
+        select(["atrium"])
+
+
+def _corridor_scan():
+    """A scan between two long parallel walls (y = ±1), no end in sight."""
+    xs = np.linspace(-12, 12, 241)
+    pts = np.r_[np.c_[xs, np.ones_like(xs)], np.c_[xs, -np.ones_like(xs)]]
+    return PointScan.from_points(pts)
+
+
+def test_a_plain_corridor_is_degenerate_along_its_axis_only():
+    scan = _corridor_scan()
+    matcher = ScanMatcher()
+    reference = matcher.build_reference(scan)
+    d = Degeneracy(matcher.curvature(scan, reference, np.zeros(3), (0.05, 0.01)), 0.12)
+    assert d.degenerate and d.ratio < 0.01
+    assert abs(d.axis[0]) > 0.99  # the corridor's axis, x
+    # the match's slide along the corridor is dropped, its correction across and in heading kept
+    remapped = d.remap(np.array([0.4, 0.05, 0.01]), np.zeros(3))
+    np.testing.assert_allclose(remapped, [0.0, 0.05, 0.01], atol=1e-3)
+    base = np.diag([400.0, 400.0, 2500.0])
+    info = d.information(base)
+    assert info[0, 0] < 0.05 * 400 and info[1, 1] > 0.99 * 400 and info[2, 2] > 0.99 * 2500
+    np.linalg.cholesky(info)  # still positive definite
+    # a room's corner pins both directions
+    corner = PointScan.from_points(np.r_[np.c_[np.linspace(0, 5, 100), np.full(100, 2.0)],
+                                         np.c_[np.full(100, 5.0), np.linspace(-3, 2, 100)]])
+    ref2 = matcher.build_reference(corner)
+    d2 = Degeneracy(matcher.curvature(corner, ref2, np.zeros(3), (0.05, 0.01)), 0.12)
+    assert not d2.degenerate and d2.ratio > 0.3
+    assert d2.information(base) is base
+    assert d2.remap(np.array([0.4, 0.05, 0.01]), np.zeros(3))[0] == 0.4
+
+
+def test_visibility_counts_points_seen_on_surfaces_and_points_seen_through():
+    angles = np.radians(np.arange(-180, 180, 0.5))
+    ranges = np.full(len(angles), 4.0)  # a round room of radius 4
+    ring = PointScan.from_ranges(ranges, angles)
+    points = np.zeros((1, ring.count, 2))
+    points[0] = ring.points
+    counts = np.array([ring.count])
+    poses = np.zeros((1, 3))
+    image, state, out = np.zeros(720), np.zeros(ring.count, np.int64), np.zeros(2, np.int64)
+    visibility(points, counts, poses, 0, 0, 0, ring.buffer, ring.count, 0.0, 0.0, 0.0, 0.2,
+               0.01, image, state, out)
+    assert out[0] == ring.count and out[1] == 0
+    # moved 1 m: the points ahead land inside the room, where the beams passed
+    visibility(points, counts, poses, 0, 0, 0, ring.buffer, ring.count, -1.0, 0.0, 0.0, 0.2,
+               0.01, image, state, out)
+    assert out[1] > 0.3 * ring.count
