@@ -140,8 +140,12 @@ def _config_fields(args) -> int:
 def _simlog(args) -> int:
     from scripts.simlog import write_simlog
 
+    if args.seconds is not None and not args.seconds > 0:
+        raise ValueError(f"--seconds must be > 0, got {args.seconds}")
+    if not args.rate > 0:
+        raise ValueError(f"--rate must be > 0, got {args.rate}")
     r = write_simlog(args.out, args.site, args.seed, args.scanner, args.rate, args.odometry,
-                     args.format)
+                     args.format, seconds=args.seconds)
     print(f"{r['scans']} scans over {r['seconds']:.0f} s and {r['metres']:.0f} m; odometry "
           f"{r['odometry_error_end_m']:.2f} m / {r['odometry_error_end_deg']:.1f} deg off at "
           f"the end; {r['relations_count']} relations")
@@ -280,6 +284,7 @@ def build_parser() -> argparse.ArgumentParser:
     sl.add_argument("--odometry", default="good", choices=list(ODOMETRY))
     sl.add_argument("--format", default="auto", choices=["auto", "flaser", "robotlaser1"],
                     help="laser lines (auto: FLASER for a 180° scanner, else ROBOTLASER1)")
+    sl.add_argument("--seconds", type=float, help="only the route's first seconds")
     sl.set_defaults(func=_simlog)
 
     bench = sub.add_parser("bench", help="benchmarks (JSON + table)")

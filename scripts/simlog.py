@@ -82,14 +82,16 @@ def log_text(survey: Survey, fmt: str = "auto") -> str:
 
 def write_simlog(out, kind: str = "building", seed: int = 0, lidar: str = "sick-0.5",
                  rate_hz: float = 10.0, odometry: str = "good", fmt: str = "auto",
-                 sampling: RelationSampling = RelationSampling()) -> dict:
-    """Survey the site and write the log, relations, truth and world next to ``out``
-    (``.clf`` or ``.clf.gz``); returns the paths and the survey's figures."""
+                 sampling: RelationSampling = RelationSampling(),
+                 seconds: float | None = None) -> dict:
+    """Survey the site (the whole route, or its first ``seconds``) and write the log,
+    relations, truth and world next to ``out`` (``.clf`` or ``.clf.gz``); returns the paths
+    and the survey's figures."""
     out = Path(out)
     stem = out.name[: -len(".gz")] if out.name.endswith(".gz") else out.name
     stem = stem[: -len(".clf")] if stem.endswith(".clf") else stem
     base = out.parent / stem
-    survey = run_survey(site(kind, seed), lidar, rate_hz, odometry, seed)
+    survey = run_survey(site(kind, seed), lidar, rate_hz, odometry, seed, seconds=seconds)
     text = log_text(survey, fmt).encode("ascii")
     write_bytes_atomic(out, gzip.compress(text, mtime=0) if out.name.endswith(".gz") else text)
     ij, delta = sample_relations(survey.stamps, survey.true_poses,

@@ -107,9 +107,10 @@ class Survey:
 
 
 def drive(route, rate_hz: float, speed: float = 0.5, max_turn: float = 0.8,
-          lookahead: float = 0.6, control_dt: float = 0.01):
+          lookahead: float = 0.6, control_dt: float = 0.01, seconds: float | None = None):
     """True poses at ``rate_hz`` and, per scan interval, the control steps' motions
-    ``(ds, dθ)`` (for the odometry), following ``route`` by pure pursuit."""
+    ``(ds, dθ)`` (for the odometry), following ``route`` by pure pursuit (for at most
+    ``seconds``, if given)."""
     route = np.asarray(route, float)
     seg = np.diff(route, axis=0)
     seg_len = np.hypot(seg[:, 0], seg[:, 1])
@@ -125,7 +126,7 @@ def drive(route, rate_hz: float, speed: float = 0.5, max_turn: float = 0.8,
         i = min(int(np.searchsorted(arc, s, side="right")) - 1, len(seg) - 1)
         return route[i] + seg[i] * ((s - arc[i]) / seg_len[i])
 
-    while progress < total - 0.05:
+    while progress < total - 0.05 and (seconds is None or len(motions) < seconds * rate_hz):
         steps = np.zeros((sub, 2))
         for m in range(sub):
             # progress: the projection on the current segment or the next
@@ -176,15 +177,16 @@ def integrate_odometry(start, motions, model: OdometryModel, rng: np.random.Gene
 
 def run_survey(where: Site, lidar: str | LidarConfig = "sick-0.5", rate_hz: float = 10.0,
                odometry: str | OdometryModel = "good", seed: int = 0,
-               speed: float = 0.5) -> Survey:
-    """Drive ``where``'s route and record scans at ``rate_hz`` with their odometry and truth.
-    Everything random (range noise, dropouts, wheel noise) comes from ``seed``."""
+               speed: float = 0.5, seconds: float | None = None) -> Survey:
+    """Drive ``where``'s route (for at most ``seconds``) and record scans at ``rate_hz`` with
+    their odometry and truth. Everything random (range noise, dropouts, wheel noise) comes
+    from ``seed``."""
     config = SCANNERS[lidar] if isinstance(lidar, str) else lidar
     model = ODOMETRY[odometry] if isinstance(odometry, str) else odometry
     if not rate_hz > 0:
         raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
     rng = np.random.default_rng(seed)
-    poses, motions = drive(where.route, rate_hz, speed)
+    poses, motions = drive(where.route, rate_hz, speed, seconds=seconds)
     odo = integrate_odometry(poses[0], motions, model, rng)
     scanner = Lidar(where.world, config)
     ranges = np.empty((len(poses), config.beams))

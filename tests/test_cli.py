@@ -96,3 +96,38 @@ def test_exploration_demo_maps_the_world_and_writes_its_outputs(tmp_path, capsys
     for name in ("map.pgm", "map.png", "trajectory.png", "trajectory_true.tum", "trajectory_estimated.tum"):
         assert (tmp_path / name).stat().st_size > 0
     assert "pose error" in capsys.readouterr().out
+
+
+def test_simlog_then_replay_scores_against_the_simulators_truth(tmp_path, capsys):
+    log = tmp_path / "hall.clf.gz"
+    assert main(["simlog", str(log), "--site", "hall", "--scanner", "rplidar-a1", "--rate",
+                 "4", "--seconds", "150", "--odometry", "noisy"]) == 0
+    said = capsys.readouterr().out
+    assert "600 scans" in said or "601 scans" in said
+    for suffix in (".relations", ".truth.tum", ".world"):
+        assert (tmp_path / f"hall{suffix}").stat().st_size > 0
+    out = tmp_path / "out"
+    assert main(["replay", str(log), "--relations", str(tmp_path / "hall.relations"),
+                 "--out", str(out)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["eT"] < 0.05 and m["loops_accepted"] > 0
+    assert "eT_local" in m and m["relations_local"] + m.get("relations_global", 0) == m[
+        "relations_used"]
+    assert main(["simlog", str(tmp_path / "x.clf"), "--rate", "0"]) == 2
+    assert "--rate must be > 0" in capsys.readouterr().err
+
+
+def test_bench_generalization_reports_every_figure_and_the_floor(tmp_path, capsys):
+    from scripts.bench.generalization import Case, bench_generalization
+
+    case = Case("hall", "rplidar-a1", 4.0, "good", seed=2, seconds=150)
+    r = bench_generalization((case,), tmp_path / "gen.json")
+    row = json.loads((tmp_path / "gen.json").read_text())["cases"][0]
+    assert row == r["cases"][0]
+    for key in ("eT", "eR_deg", "ate_rmse_m", "loops_accepted", "loop_precision", "loop_recall",
+                "real_time_factor", "floor_eT", "floor_loop_precision", "eT_over_floor"):
+        assert key in row
+    assert 0.0 <= row["loop_precision"] <= 1.0 and 0.0 <= row["loop_recall"] <= 1.0
+    assert row["revisit_nodes"] > 0 and row["loops_accepted"] > 0
+    assert row["ate_rmse_m"] < 0.1 and row["floor_eT"] < 0.05
+    assert "worst loop precision" in capsys.readouterr().out

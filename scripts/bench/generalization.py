@@ -42,11 +42,13 @@ class Case:
     odometry: str  # good, noisy, biased
     use_odometry: bool = True
     seed: int = 0
+    seconds: float | None = None  # the route's first seconds only (None: all of it)
 
     @property
     def name(self) -> str:
         odo = self.odometry if self.use_odometry else "scans-only"
-        return f"{self.site}-{self.scanner}-{self.rate_hz:g}hz-{odo}-s{self.seed}"
+        part = f"-{self.seconds:g}s" if self.seconds else ""
+        return f"{self.site}-{self.scanner}-{self.rate_hz:g}hz-{odo}-s{self.seed}{part}"
 
 
 # The fixed suite: loops of 60–132 m, plain corridors, a hall wider than 12 m of reach; 180°
@@ -122,14 +124,15 @@ class TruthOracle:
         fe_align, be_align = fe.matcher.align_scans, be.matcher.align_scans
         align_loop = be.align_loop
 
-        def front(scan, reference, guess=None):
+        def front(scan, reference, guess=None, window=None):
             keyframe = self._true(self.slam.graph.stamps[fe.keyframe])
-            return fe_align(scan, reference, between(self.truth[self.scan], keyframe))
+            return fe_align(scan, reference, between(self.truth[self.scan], keyframe), window)
 
-        def back(scan, reference, guess=None):
+        def back(scan, reference, guess=None, window=None):
             c, n = self.loop
-            return be_align(scan, reference, between(self._true(self.slam.graph.stamps[n]),
-                                                     self._true(self.slam.graph.stamps[c])))
+            truth = between(self._true(self.slam.graph.stamps[n]),
+                            self._true(self.slam.graph.stamps[c]))
+            return be_align(scan, reference, truth, window)
 
         def loop(candidate, node):
             self.loop = (candidate, node)
@@ -147,7 +150,8 @@ class TruthOracle:
 def run_case(case: Case, work: Path, config: SlamConfig | None = None, floor: bool = True,
              echo=print) -> dict:
     log = work / f"{case.name}.clf.gz"
-    made = write_simlog(log, case.site, case.seed, case.scanner, case.rate_hz, case.odometry)
+    made = write_simlog(log, case.site, case.seed, case.scanner, case.rate_hz, case.odometry,
+                        seconds=case.seconds)
     stamps, truth = read_tum(made["truth"])
     result = {"case": case.name, **asdict(case), "scans": made["scans"],
               "metres": round(made["metres"], 1),
