@@ -182,8 +182,9 @@ class BackEnd:
 
     def align_loop(self, candidate: int, node: int):
         """Step 3a: ``node``'s pose in ``candidate``'s frame by Alg. 5 against the submap
-        around the candidate, or None when the submap's scans saw too little of where the
-        match puts its points, or saw through too many of them."""
+        around the candidate, or None when the match ends at the edge of its box, or the
+        submap's surfaces hold too few of its points and its scans saw too little of where the
+        match puts them, or saw through too many."""
         loops = self.loops
         c = loops.config
         loops.attempts += 1
@@ -196,6 +197,9 @@ class BackEnd:
         guess = relative_guess(self.graph, candidate, node)
         window = self.loops.window(self.graph, self.nodes.cov, candidate, node, self._window)
         pose = self.matcher.align_scans(scan, reference, guess, window).pose
+        if self._at_edge(pose, guess, window):  # the optimum lies at or beyond the box
+            loops.rejected_match += 1
+            return None
         self.z_info[:] = self.information()
         ratio = self.config.front_end.degeneracy_ratio
         if ratio > 0:  # along a corridor the graph's estimate stands in, the edge weak there
@@ -217,6 +221,11 @@ class BackEnd:
             return pose
         loops.rejected_match += 1
         return None
+
+    def _at_edge(self, pose, centre, window) -> bool:
+        """The match ended within ``window_margin`` of its box's edge."""
+        margin = 1.0 - self.loops.config.window_margin
+        return bool(np.any(np.abs(pose - centre) >= margin * window))
 
     def close_loop(self, candidate: int, node: int, z) -> bool:
         """Step 3b: add the loop edge, re-optimise (Eq. 21), and keep the edge only if the

@@ -288,6 +288,9 @@ class LoopClosureConfig(Section):
     search_window: tuple[float, float, float] = _setting(
         (2.0, 2.0, 0.5), "least half-widths of the loop match's box around the graph's estimate",
         gt=0)
+    window_margin: float = _setting(
+        0.05, "a loop match within this share of its box's edge is refused: the optimum lies at "
+        "or beyond the box, not inside it", ge=0, lt=1)
     max_search_window: tuple[float, float, float] = _setting(
         (2.0, 2.0, 0.5), "largest half-widths: between the two, the box spans 3σ of the "
         "propagated relative pose", gt=0)

@@ -8,9 +8,9 @@ scan's position after the rigid fit of the whole trajectory onto the truth); the
 closures, their ``loop_precision`` (a closure is correct if its transform is within 0.2 m and
 2° of the truth) and ``loop_recall`` (of the nodes that truly revisit an earlier place, the
 share tied to it by a correct closure); the real-time factor; and the **floor**: the same case
-with every alignment started at the true relative pose (the swarm never misses the right
-basin; the objective, the noise and the graph do the rest) — what better global search could
-reach.
+with every alignment started at the true relative pose and trusted (the swarm never misses the
+right basin; the objective, the noise and the graph do the rest) — what better global search
+could reach.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.config import SlamConfig
+from runtime.config import SlamConfig, override
 from runtime.pose import between
 from runtime.pose_graph import LOOP
 from runtime.writers import write_json_atomic
@@ -114,7 +114,7 @@ def loop_scores(graph, node_truth, config: SlamConfig, stamps) -> dict:
 class TruthOracle:
     """Starts every alignment of a run at the true relative pose (the floor's "perfect scan
     matching"): it replaces the guess the front end and the loop search pass to their
-    matchers."""
+    matchers. The floor's run trusts every match (no odometry gate, no inlier test)."""
 
     def __init__(self, slam, stamps, truth):
         self.slam, self.stamps, self.truth = slam, np.asarray(stamps), np.asarray(truth)
@@ -158,6 +158,10 @@ def run_case(case: Case, work: Path, config: SlamConfig | None = None, floor: bo
               "odometry_error_end_m": made["odometry_error_end_m"]}
     for label, oracle in (("", False), ("floor_", True)) if floor else (("", False),):
         hook = {}
+        run_config = config
+        if oracle:  # a perfect match is never lost: nothing for the gate or the inlier test
+            run_config = override(config or SlamConfig(), {"front_end.odometry_gate": None,
+                                                           "front_end.min_track_inliers": 0.0})
 
         def before_scan(k, runtime, hook=hook, oracle=oracle):
             if oracle and "oracle" not in hook:
@@ -166,7 +170,7 @@ def run_case(case: Case, work: Path, config: SlamConfig | None = None, floor: bo
                 hook["oracle"].before_scan(k, runtime)
 
         m, runtime = replay_run(log, made["relations"], None, case.use_odometry, None, None,
-                                case.seed, config, label=f"{case.name}{' floor' if oracle else ''}",
+                                case.seed, run_config, label=f"{case.name}{' floor' if oracle else ''}",
                                 before_scan=before_scan)
         slam = runtime.slam
         est_stamps, est = slam.trajectory()
