@@ -9,10 +9,12 @@ the consistency test that replaces the literal "error did not grow" rule.
    covariance, propagated along the chain of odometry edges.
 3. For the closest remaining candidates: align the new node's scan with a local submap around
    the candidate (its scan and its neighbours', placed by the graph; Alg. 5, the search box
-   centred on the graph's current estimate), and accept the match only if enough of its points
-   lie on the submap's surfaces (the inlier fraction; λ itself is
-   no test here, since scans metres apart always score worse than the keyframe pairs the
-   rejection threshold was learnt on). Add the edge, re-optimise, and keep it only if its own
+   centred on the graph's current estimate, its half-widths from :meth:`LoopCloser.window`),
+   refuse a match at the box's edge, and accept it only if enough of its points lie on the
+   submap's surfaces (the inlier fraction) or :func:`visibility` says the submap's scans saw
+   enough of them on surfaces and few in their free space (λ itself is no test here, since
+   scans metres apart always score worse than the keyframe pairs the rejection threshold was
+   learnt on). Add the edge, re-optimise, and keep it only if its own
    error ``eᵀΩe`` stays under the χ²₃ gate (7.81) and the total error rose by no more than a
    consistent 3-dof constraint raises it (χ²₃ at 99.9%: 16.3); otherwise remove the edge and
    restore the poses. (On the first 6,000 Intel scans accepted loops raised χ² by 0.03 at the
