@@ -262,7 +262,7 @@ class LoopClosureConfig(Section):
     """Seek_Loop_Closure, Alg. 7 (docs/method.md §5)."""
 
     KEY = "loop_closure"
-    search_radius: float = _setting(6.0, "m: candidates beyond this are never considered", gt=0)
+    search_radius: float = _setting(10.0, "m: candidates beyond this are never considered", gt=0)
     exclude_recent: int = _setting(10, "nodes just behind the new one are neighbours, not loops",
                                    ge=1)
     max_candidates: int = _setting(8, "gated candidates kept, closest first", ge=1)
