@@ -33,22 +33,15 @@ from runtime.sparse_ldl import SparseLDL, permute_triplets
 
 
 @njit(cache=True)
-def dcs_weights(poses, ij, z, info, kind, phi, exempt, out):
+def dcs_weights(chi2, kind, phi, exempt, out):
     """Dynamic covariance scaling (Agarwal et al. 2013) of every loop edge (``kind`` LOOP) but
-    ``exempt``: ``out[k] = s²``, ``s = min(1, 2Φ/(Φ + eᵀΩe))`` at the current poses; 1 for the
-    others. An edge that contradicts the rest of the graph loses its pull instead of bending
-    the map (docs/method.md §4.3)."""
-    for k in range(ij.shape[0]):
+    ``exempt``, from each edge's ``eᵀΩe`` (``chi2``): ``out[k] = s²``,
+    ``s = min(1, 2Φ/(Φ + eᵀΩe))``; 1 for the others. An edge that contradicts the rest of the
+    graph loses its pull instead of bending the map (docs/method.md §4.3)."""
+    for k in range(chi2.shape[0]):
         out[k] = 1.0
-        if kind[k] != LOOP or k == exempt:
-            continue
-        e0, e1, e2 = edge_error(poses, ij[k, 0], ij[k, 1], z[k, 0], z[k, 1], z[k, 2])
-        own = 0.0
-        for a, ea in enumerate((e0, e1, e2)):
-            for c, ec in enumerate((e0, e1, e2)):
-                own += ea * info[k, a, c] * ec
-        if own > phi:
-            s = 2.0 * phi / (phi + own)
+        if kind[k] == LOOP and k != exempt and chi2[k] > phi:
+            s = 2.0 * phi / (phi + chi2[k])
             out[k] = s * s
 
 
@@ -319,8 +312,7 @@ class GaussNewton:
         m = g.n_edges
         phi = self.config.robust_loops
         if phi:
-            dcs_weights(g.poses[: g.n_nodes], g.ij[:m], g.z[:m], g.info[:m], g.kind[:m], phi,
-                        exempt, self._weight[:m])
+            dcs_weights(g.edge_chi2(), g.kind[:m], phi, exempt, self._weight[:m])
         else:
             self._weight[:m] = 1.0
         t0 = time.perf_counter()

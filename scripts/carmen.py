@@ -204,20 +204,23 @@ def _num(v: float) -> str:
     return repr(float(v))  # the shortest text that reads back as the same float
 
 
+def _nums(values) -> str:
+    return " ".join(_num(v) for v in values)
+
+
 def flaser_line(ranges, pose, odometry, stamp: float, host: str = "swarmslam") -> str:
     """A FLASER line (a 180° scan from −90°; CARMEN puts the odometry in both pose fields of a
     raw log)."""
     rs = " ".join(f"{r:.3f}" for r in ranges)
-    p = " ".join(_num(v) for v in pose)
-    o = " ".join(_num(v) for v in odometry)
-    return f"FLASER {len(ranges)} {rs} {p} {o} {_num(stamp)} {host} {_num(stamp)}"
+    return (f"FLASER {len(ranges)} {rs} {_nums(pose)} {_nums(odometry)} {_num(stamp)} {host} "
+            f"{_num(stamp)}")
 
 
 def robotlaser1_line(ranges, start_angle: float, angular_res: float, max_range: float, pose,
                      stamp: float, host: str = "swarmslam") -> str:
     """A ROBOTLASER1 line for a scanner at the robot's origin, ``pose`` its odometry."""
     rs = " ".join(f"{r:.3f}" for r in ranges)
-    p = " ".join(_num(v) for v in pose)
+    p = _nums(pose)
     fov = angular_res * len(ranges)
     return (f"ROBOTLASER1 0 {_num(start_angle)} {_num(fov)} {_num(angular_res)} "
             f"{_num(max_range)} 0.01 0 {len(ranges)} {rs} 0 {p} {p} 0 0 0 0 0 "
@@ -225,5 +228,4 @@ def robotlaser1_line(ranges, start_angle: float, angular_res: float, max_range: 
 
 
 def odom_line(pose, stamp: float, host: str = "swarmslam") -> str:
-    p = " ".join(_num(v) for v in pose)
-    return f"ODOM {p} 0 0 0 {_num(stamp)} {host} {_num(stamp)}"
+    return f"ODOM {_nums(pose)} 0 0 0 {_num(stamp)} {host} {_num(stamp)}"

@@ -111,40 +111,52 @@ def loop_scores(graph, node_truth, config: SlamConfig, stamps) -> dict:
             "loop_recall": hit / len(revisits) if revisits else 1.0}
 
 
+def truth_at(stamps, truth, t):
+    """The true pose of the scan nearest in time to ``t``."""
+    return truth[int(np.argmin(np.abs(stamps - t)))]
+
+
 class TruthOracle:
     """Starts every alignment of a run at the true relative pose (the floor's "perfect scan
     matching"): it replaces the guess the front end and the loop search pass to their
-    matchers. The floor's run trusts every match (no odometry gate, no inlier test)."""
+    matchers. The floor's run trusts every match (no odometry gate, no inlier test). Passed as
+    ``replay_run``'s ``before_scan``: it takes hold of the run's SLAM at the first scan and then
+    follows which scan is being tracked."""
 
-    def __init__(self, slam, stamps, truth):
-        self.slam, self.stamps, self.truth = slam, np.asarray(stamps), np.asarray(truth)
+    def __init__(self, stamps, truth):
+        self.stamps, self.truth = np.asarray(stamps), np.asarray(truth)
+        self.slam = None
         self.scan = 0
         self.loop = None  # (candidate, node) while the back end aligns a loop
+
+    def __call__(self, k, runtime):
+        if self.slam is None:
+            self._take_hold(runtime.slam)
+        self.scan = k
+
+    def _true_node(self, node):
+        return truth_at(self.stamps, self.truth, self.slam.graph.stamps[node])
+
+    def _take_hold(self, slam):
+        self.slam = slam
         fe, be = slam.front_end, slam.back_end
         fe_align, be_align = fe.matcher.align_scans, be.matcher.align_scans
         align_loop = be.align_loop
 
         def front(scan, reference, guess=None, window=None):
-            keyframe = self._true(self.slam.graph.stamps[fe.keyframe])
-            return fe_align(scan, reference, between(self.truth[self.scan], keyframe), window)
+            true_rel = between(self.truth[self.scan], self._true_node(fe.keyframe))
+            return fe_align(scan, reference, true_rel, window)
 
         def back(scan, reference, guess=None, window=None):
             c, n = self.loop
-            truth = between(self._true(self.slam.graph.stamps[n]),
-                            self._true(self.slam.graph.stamps[c]))
-            return be_align(scan, reference, truth, window)
+            return be_align(scan, reference, between(self._true_node(n), self._true_node(c)),
+                            window)
 
         def loop(candidate, node):
             self.loop = (candidate, node)
             return align_loop(candidate, node)
 
         fe.matcher.align_scans, be.matcher.align_scans, be.align_loop = front, back, loop
-
-    def _true(self, stamp):
-        return self.truth[int(np.argmin(np.abs(self.stamps - stamp)))]
-
-    def before_scan(self, k, runtime):
-        self.scan = k
 
 
 def run_case(case: Case, work: Path, config: SlamConfig | None = None, floor: bool = True,
@@ -157,27 +169,21 @@ def run_case(case: Case, work: Path, config: SlamConfig | None = None, floor: bo
               "metres": round(made["metres"], 1),
               "odometry_error_end_m": made["odometry_error_end_m"]}
     for label, oracle in (("", False), ("floor_", True)) if floor else (("", False),):
-        hook = {}
-        run_config = config
+        run_config, hook = config, None
         if oracle:  # a perfect match is never lost: nothing for the gate or the inlier test
             run_config = override(config or SlamConfig(), {"front_end.odometry_gate": None,
                                                            "front_end.min_track_inliers": 0.0})
-
-        def before_scan(k, runtime, hook=hook, oracle=oracle):
-            if oracle and "oracle" not in hook:
-                hook["oracle"] = TruthOracle(runtime.slam, stamps, truth)
-            if oracle:
-                hook["oracle"].before_scan(k, runtime)
-
+            hook = TruthOracle(stamps, truth)
         m, runtime = replay_run(log, made["relations"], None, case.use_odometry, None, None,
-                                case.seed, run_config, label=f"{case.name}{' floor' if oracle else ''}",
-                                before_scan=before_scan)
+                                case.seed, run_config,
+                                label=f"{case.name}{' floor' if oracle else ''}",
+                                before_scan=hook)
         slam = runtime.slam
-        est_stamps, est = slam.trajectory()
+        _, est = slam.trajectory()
         g = slam.graph
-        node_truth = np.array([truth[int(np.argmin(np.abs(stamps - t)))]
-                               for t in g.stamps[: g.n_nodes]])
-        scores = loop_scores(g, node_truth, slam.config, g.stamps[: g.n_nodes])
+        node_stamps = g.stamps[: g.n_nodes]
+        node_truth = np.array([truth_at(stamps, truth, t) for t in node_stamps])
+        scores = loop_scores(g, node_truth, slam.config, node_stamps)
         row = {"eT": m["eT"], "eR_deg": m["eR_deg"], "ate_rmse_m": rigid_ate(est, truth),
                **scores, "real_time_factor": m["real_time_factor"],
                "matches_recovered": m["matches_recovered"]}
