@@ -297,6 +297,42 @@ class LoopClosureConfig(Section):
 
 
 @dataclass(frozen=True)
+class RelocalizationConfig(Section):
+    """The global search for a scan's pose in a saved map (docs/method.md §8)."""
+
+    KEY = "relocalization"
+    resolution: float = _setting(0.1, "m per cell of the hit grid the search scores on", gt=0)
+    hit_sigma: float = _setting(0.1, "m: a point this far from a surface scores e^(-1/2) of "
+                                "one on it", gt=0)
+    levels: int = _setting(6, "pyramid levels above the hit grid (blocks of 2^levels cells)",
+                           ge=1, le=12)
+    heading_levels: int = _setting(
+        0, "top levels whose blocks also span 2, 4, … headings (looser bounds, fewer roots)",
+        ge=0)
+    map_range: float = _setting(30.0, "m: node scan points beyond are not rendered", gt=0)
+    query_range: float = _setting(20.0, "m: query points beyond are not used (it also sets "
+                                  "the heading step)", gt=0)
+    query_spacing: float = _setting(0.2, "m: query points at least this far apart along the scan",
+                                    ge=0)
+    query_points: int = _setting(96, "query points at most (thinned evenly)", ge=8)
+    min_score: float = _setting(0.7, "mean hit value (0-1) a pose needs to be an answer",
+                                gt=0, le=1)
+    ambiguity_ratio: float = _setting(
+        0.9, "a distinct pose scoring at least this share of the best makes the answer "
+        "'ambiguous'", gt=0, le=1)
+    distinct_distance: float = _setting(1.0, "m: poses farther apart than this are distinct",
+                                        gt=0)
+    distinct_angle: float = _setting(0.35, "rad: or turned more than this", gt=0)
+    max_hypotheses: int = _setting(4, "distinct poses an ambiguous answer lists", ge=2)
+    refine_window: tuple[float, float, float] = _setting(
+        (0.15, 0.15, 0.03), "half-widths of the swarm's polish around the search's cell", gt=0)
+    refine_nodes: int = _setting(5, "nearest node scans the polish matches against", ge=1)
+    confirm_seconds: float = _setting(2.0, "s of scans merged to confirm a first answer", ge=0)
+    max_cells: int = _setting(50_000_000, "cells of the hit grid at most (memory: levels + 2 "
+                              "bytes per cell)", ge=16)
+
+
+@dataclass(frozen=True)
 class OptimizerConfig(Section):
     """Gauss–Newton on the pose graph, Eq. 21 (docs/method.md §4.3)."""
 
@@ -384,6 +420,8 @@ class SlamConfig(Section):
     matcher: MatcherConfig = _section(MatcherConfig, "the scan matcher (Alg. 5)")
     loop_closure: LoopClosureConfig = _section(LoopClosureConfig, "loop closure (Alg. 7)")
     optimizer: OptimizerConfig = _section(_slam_optimizer, "Gauss–Newton (Eq. 21)")
+    relocalization: RelocalizationConfig = _section(RelocalizationConfig,
+                                                    "the global search in a saved map")
     map: MapConfig = _section(MapConfig, "the occupancy grid")
     runtime: RuntimeConfig = _section(RuntimeConfig, "the fixed-rate loop")
 

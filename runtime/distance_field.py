@@ -100,7 +100,7 @@ def build_distance_field(pts, n, res, radius, max_gap, inv_c2, field, meta):
             if dx * dx + dy * dy < gap2:
                 bx = pts[p + 1, 0]
                 by = pts[p + 1, 1]
-        _splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field)
+        splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field)
     if inv_c2 > 0.0:
         far = math.log1p(r2 * inv_c2)
         meta[R2] = far
@@ -112,7 +112,7 @@ def build_distance_field(pts, n, res, radius, max_gap, inv_c2, field, meta):
 
 
 @njit(cache=True)
-def _splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field):
+def splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field):
     """Lower every node within ``radius`` of segment a–b to its squared distance from it."""
     ux = bx - ax
     uy = by - ay

@@ -60,6 +60,23 @@ def _bench_slam(args) -> int:
     return 0
 
 
+def _bench_localize(args) -> int:
+    from scripts.bench.localize import bench_localize
+    from scripts.bench.slam import LOGS
+    from scripts.datasets import find_datasets
+
+    logs = tuple(d.strip() for d in args.datasets.split(",") if d.strip())
+    for d in logs:
+        if d not in LOGS:
+            raise SystemExit(f"unknown dataset {d!r}; choose from {', '.join(LOGS)}")
+    if args.queries < 1:
+        raise SystemExit(f"--queries must be at least 1, got {args.queries}")
+    bench_localize(find_datasets(args.data), logs, args.queries, args.seed, args.maps, args.json)
+    if args.json:
+        print(f"wrote {args.json}")
+    return 0
+
+
 def _bench_generalization(args) -> int:
     from scripts.bench.generalization import bench_generalization, select
 
@@ -319,6 +336,16 @@ def build_parser() -> argparse.ArgumentParser:
     ge.add_argument("--json", help="write results here (atomically)")
     _config_options(ge, DEFAULT_PRESET)
     ge.set_defaults(func=_bench_generalization)
+    lo = bsub.add_parser("localize", help="global relocalization in maps of Intel/ACES3/"
+                                          "fr-clinic, single scans and confirmed")
+    lo.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
+    lo.add_argument("--datasets", default="intel,aces,clinic")
+    lo.add_argument("--queries", type=int, default=200, help="scans relocalized per log")
+    lo.add_argument("--seed", type=int, default=0, help="seeds which scans are drawn")
+    lo.add_argument("--maps", metavar="DIR", help="where the mapping runs are kept and reused "
+                                                  "(default: ./swarmslam-maps)")
+    lo.add_argument("--json", help="write results here (atomically)")
+    lo.set_defaults(func=_bench_localize)
     pg = bsub.add_parser("posegraph", help="Gauss-Newton on the g2o benchmark graphs")
     pg.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
     pg.add_argument("--repeats", type=int, default=5)

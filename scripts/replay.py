@@ -1,7 +1,8 @@
 """``swarmslam replay LOG``: the SLAM over a recorded CARMEN log, scored if relations are given.
 
 Writes to ``out_dir`` (atomically): the map (PGM + YAML for ROS map_server, and PNG), the
-trajectory of every scan (TUM), the pose graph (g2o) and ``metrics.json``.
+trajectory of every scan (TUM), the pose graph (g2o), the session (``session.npz``: localize
+in it with ``--localize``, extend it with ``--resume``) and ``metrics.json``.
 """
 
 from __future__ import annotations
@@ -108,5 +109,6 @@ def replay_run(log_path, relations_path=None, optimizer: str | None = None, odom
         metrics.update(kummerle(stamps, poses, relations))
     if out_dir is not None:
         write_results(slam, out_dir)
+        runtime.save(Path(out_dir) / "session.npz")  # map once, localize or resume later
         write_json_atomic(Path(out_dir) / "metrics.json", metrics)
     return metrics, runtime

@@ -1,0 +1,408 @@
+"""Where in the whole map does a scan fit? An exhaustive, branch-and-bound search over every
+standable cell and every heading (docs/method.md §8).
+
+The saved map is rendered once into a *hit grid*: each cell holds how well a scan point landing
+there fits the map's surfaces (255·exp(−d²/2σ²), ``d`` the distance to the nearest surface —
+the stored node scans, consecutive points joined as in the distance field). A pose's *score* is
+the sum over the query's points of the hit grid at their cells, so a perfect fit scores
+255 per point.
+
+Branch and bound (Olson's multi-resolution correlative search, as Cartographer uses it): level
+``h`` of a pyramid holds, at ``(i, j)``, the largest hit value of the ``2ʰ × 2ʰ`` block of cells
+starting there, so scoring a heading and a block of ``2ʰ × 2ʰ`` positions on level ``h`` bounds
+every position in it from above. Blocks are split best first and dropped as soon as their bound
+cannot beat the best pose found, so the answer is the exact best pose on the grid, found without
+scoring most of the poses. A block in which the robot could not stand (no cell seen free by the
+map's scans) is never scored.
+
+To know whether a second, *distinct* pose explains the scan about as well (a symmetric room, a
+corridor), the same search runs again with the poses near the answers found so far excluded.
+
+Everything here is compiled and works on buffers allocated when the map is loaded.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from runtime.config import RelocalizationConfig
+from runtime.distance_field import splat_segment
+from runtime.occupancy_grid import integrate_scan
+from runtime.pose import compose
+
+HIT_MAX = 255  # a point exactly on a surface
+# Columns of a search candidate (stack and root rows): score, level, heading, row, column.
+C_SCORE, C_LEVEL, C_HEADING, C_ROW, C_COL = range(5)
+
+
+@njit(cache=True)
+def render_hits(points, counts, poses, n_nodes, max_range, max_gap, ox, oy, res, sigma, d2,
+                hits):
+    """The hit grid of the node scans placed at ``poses`` (``d2``: scratch of its shape)."""
+    ny, nx = hits.shape
+    radius = 3.0 * sigma
+    r2 = radius * radius
+    for i in range(ny):
+        for j in range(nx):
+            d2[i, j] = r2
+    gap2 = max_gap * max_gap
+    reach2 = max_range * max_range
+    for m in range(n_nodes):
+        c, s = math.cos(poses[m, 2]), math.sin(poses[m, 2])
+        n = counts[m]
+        for p in range(n):
+            px, py = points[m, p, 0], points[m, p, 1]
+            if px * px + py * py > reach2:
+                continue
+            qx, qy = px, py
+            if p + 1 < n:
+                dx, dy = points[m, p + 1, 0] - px, points[m, p + 1, 1] - py
+                if dx * dx + dy * dy < gap2:
+                    qx, qy = points[m, p + 1, 0], points[m, p + 1, 1]
+            ax = poses[m, 0] + c * px - s * py - ox
+            ay = poses[m, 1] + s * px + c * py - oy
+            bx = poses[m, 0] + c * qx - s * qy - ox
+            by = poses[m, 1] + s * qx + c * qy - oy
+            splat_segment(ax, ay, bx, by, 0.0, 0.0, res, radius, nx, ny, d2)
+    inv = 1.0 / (2.0 * sigma * sigma)
+    for i in range(ny):
+        for j in range(nx):
+            v = d2[i, j]
+            hits[i, j] = 0 if v >= r2 else int(HIT_MAX * math.exp(-v * inv) + 0.5)
+
+
+@njit(cache=True)
+def pool_pyramid(levels):
+    """Level ``h`` from level ``h − 1``: the largest value of each ``2ʰ × 2ʰ`` block."""
+    n_levels, ny, nx = levels.shape
+    for h in range(1, n_levels):
+        half = 1 << (h - 1)
+        for i in range(ny):
+            for j in range(nx):
+                v = levels[h - 1, i, j]
+                if j + half < nx:
+                    v = max(v, levels[h - 1, i, j + half])
+                if i + half < ny:
+                    v = max(v, levels[h - 1, i + half, j])
+                    if j + half < nx:
+                        v = max(v, levels[h - 1, i + half, j + half])
+                levels[h, i, j] = v
+
+
+def bound_shift(group: int) -> int:
+    """Cells a query point may move while the heading turns by half of a group of ``group``
+    heading steps: one cell per step at the query's reach (:func:`heading_step`), plus one for
+    the arc's excess over the chord and one for rounding the two offsets."""
+    return 0 if group == 1 else group // 2 + 2
+
+
+@njit(cache=True)
+def pool_bounds(pyramid, shifts, bounds):
+    """``bounds[h]`` at ``(i, j)``: the largest hit value of the ``w × w`` block starting
+    there, ``w = 2ʰ + 2·shifts[h]`` (level 0: the hit grid itself) — the reach of a level-``h``
+    search block's points over its heading group and ``2ʰ × 2ʰ`` positions. Two overlapping
+    power-of-two blocks of ``pyramid`` per side cover the block exactly."""
+    n_levels, ny, nx = bounds.shape
+    for h in range(n_levels):
+        w = (1 << h) + 2 * shifts[h]
+        p = 0
+        while (2 << p) <= w:
+            p += 1
+        far = w - (1 << p)
+        for i in range(ny):
+            for j in range(nx):
+                v = pyramid[p, i, j]
+                if j + far < nx:
+                    v = max(v, pyramid[p, i, j + far])
+                if i + far < ny:
+                    v = max(v, pyramid[p, i + far, j])
+                    if j + far < nx:
+                        v = max(v, pyramid[p, i + far, j + far])
+                bounds[h, i, j] = v
+
+
+@njit(cache=True)
+def rotate_query(points, n, res, step, n_headings, offsets):
+    """Each point's cell offset from the robot's cell at each of ``n_headings`` headings
+    ``a·step``."""
+    inv = 1.0 / res
+    for a in range(n_headings):
+        c, s = math.cos(a * step), math.sin(a * step)
+        for k in range(n):
+            x, y = points[k, 0], points[k, 1]
+            offsets[a, k, 0] = int(math.floor((s * x + c * y) * inv + 0.5))
+            offsets[a, k, 1] = int(math.floor((c * x - s * y) * inv + 0.5))
+
+
+@njit(cache=True, inline="always")
+def _score(bounds, h, shift, offsets, a, n, i, j):
+    ny, nx = bounds.shape[1], bounds.shape[2]
+    total = 0
+    i -= shift
+    j -= shift
+    for k in range(n):
+        r = i + offsets[a, k, 0]
+        q = j + offsets[a, k, 1]
+        if 0 <= r < ny and 0 <= q < nx:
+            total += bounds[h, r, q]
+    return total
+
+
+@njit(cache=True)
+def _keep(found, n_found, cell_radius, heading_radius, n_headings, s, a, i, j):
+    """Add the pose to ``found`` (rows: score, heading, row, column; best first), merged with
+    a pose of the same place (within the radii) it beats, or instead of the worst when full.
+    Returns the new count."""
+    for e in range(n_found):
+        d = abs(a - found[e, 1]) % n_headings
+        if (min(d, n_headings - d) <= heading_radius
+                and (i - found[e, 2]) ** 2 + (j - found[e, 3]) ** 2 <= cell_radius ** 2):
+            if s <= found[e, 0]:
+                return n_found
+            # the same place, better: drop the old row, then insert below
+            for f in range(e, n_found - 1):
+                for c in range(4):
+                    found[f, c] = found[f + 1, c]
+            n_found -= 1
+            break
+    if n_found == found.shape[0]:
+        if s <= found[n_found - 1, 0]:
+            return n_found
+        n_found -= 1
+    k = n_found
+    while k > 0 and found[k - 1, 0] < s:
+        for c in range(4):
+            found[k, c] = found[k - 1, c]
+        k -= 1
+    found[k, 0], found[k, 1], found[k, 2], found[k, 3] = s, a, i, j
+    return n_found + 1
+
+
+@njit(cache=True)
+def _sort_descending(rows, n):
+    """Heapsort ``rows[:n]`` by their score column, largest first, in place."""
+    for start in range(n // 2 - 1, -1, -1):
+        _sift(rows, start, n)
+    for end in range(n - 1, 0, -1):
+        for c in range(rows.shape[1]):
+            rows[0, c], rows[end, c] = rows[end, c], rows[0, c]
+        _sift(rows, 0, end)
+
+
+@njit(cache=True, inline="always")
+def _sift(rows, root, n):
+    # a min-heap, so that the sorted order is descending
+    while True:
+        child = 2 * root + 1
+        if child >= n:
+            return
+        if child + 1 < n and rows[child + 1, C_SCORE] < rows[child, C_SCORE]:
+            child += 1
+        if rows[child, C_SCORE] < rows[root, C_SCORE]:
+            for c in range(rows.shape[1]):
+                rows[root, c], rows[child, c] = rows[child, c], rows[root, c]
+            root = child
+        else:
+            return
+
+
+@njit(cache=True)
+def branch_and_bound(bounds, shifts, groups, free, offsets, n_points, n_headings, min_score,
+                     ratio, cell_radius, heading_radius, roots, stack, found):
+    """The best pose on the grid scoring at least ``min_score``, and the distinct poses (farther
+    than ``cell_radius`` cells or ``heading_radius`` steps from each other) scoring at least
+    ``ratio`` of it: rows of ``found`` (score, heading, row, column), best first. Returns
+    ``(how many, blocks scored)``.
+
+    A search block of level ``h`` spans ``groups[h]`` headings and ``2ʰ × 2ʰ`` positions; its
+    bound scores the query at the middle heading on ``bounds[h]``, shifted by ``shifts[h]``.
+    Blocks whose bound is below ``ratio`` of the best so far are dropped: nothing in them can
+    beat the best or rival it. ``roots`` and ``stack`` are scratch (rows of ``C_*`` columns).
+    """
+    top = bounds.shape[0] - 1
+    ny, nx = bounds.shape[1], bounds.shape[2]
+    w = 1 << top
+    g = groups[top]
+    n_roots = 0
+    scored = 0
+    for a in range(0, n_headings, g):
+        for i in range(0, ny, w):
+            for j in range(0, nx, w):
+                if free[top, i, j] == 0:
+                    continue
+                s = _score(bounds, top, shifts[top], offsets, a + g // 2, n_points, i, j)
+                scored += 1
+                if s < min_score:
+                    continue
+                roots[n_roots, C_SCORE] = s
+                roots[n_roots, C_LEVEL] = top
+                roots[n_roots, C_HEADING] = a
+                roots[n_roots, C_ROW] = i
+                roots[n_roots, C_COL] = j
+                n_roots += 1
+    _sort_descending(roots, n_roots)
+    floor = min_score
+    n_found = 0
+    for r in range(n_roots):
+        if roots[r, C_SCORE] < floor:
+            break  # sorted: no later root reaches the floor either
+        depth = 1
+        for c in range(5):
+            stack[0, c] = roots[r, c]
+        while depth > 0:
+            depth -= 1
+            s = stack[depth, C_SCORE]
+            if s < floor:
+                continue
+            h, a = stack[depth, C_LEVEL], stack[depth, C_HEADING]
+            i, j = stack[depth, C_ROW], stack[depth, C_COL]
+            if h == 0:
+                if free[0, i, j]:
+                    n_found = _keep(found, n_found, cell_radius, heading_radius, n_headings,
+                                    s, a, i, j)
+                    floor = max(floor, int(math.ceil(ratio * found[0, 0])))
+                continue
+            # the four (or, with the heading group halved, eight) children, pushed worst first
+            # so that the best is popped next
+            half = 1 << (h - 1)
+            cg = groups[h - 1]
+            base = depth
+            for ca in range(groups[h] // cg):
+                aa = a + ca * cg
+                if aa >= n_headings:
+                    continue
+                for ci in range(2):
+                    for cj in range(2):
+                        ii, jj = i + ci * half, j + cj * half
+                        if ii >= ny or jj >= nx or free[h - 1, ii, jj] == 0:
+                            continue
+                        cs = _score(bounds, h - 1, shifts[h - 1], offsets, aa + cg // 2,
+                                    n_points, ii, jj)
+                        scored += 1
+                        if cs < floor:
+                            continue
+                        k = depth  # insertion keeping stack[base:depth] ascending by score
+                        while k > base and stack[k - 1, C_SCORE] > cs:
+                            for c in range(5):
+                                stack[k, c] = stack[k - 1, c]
+                            k -= 1
+                        stack[k, C_SCORE] = cs
+                        stack[k, C_LEVEL] = h - 1
+                        stack[k, C_HEADING] = aa
+                        stack[k, C_ROW] = ii
+                        stack[k, C_COL] = jj
+                        depth += 1
+    while n_found > 0 and found[n_found - 1, 0] < floor:  # rivals the best outgrew
+        n_found -= 1
+    return n_found, scored
+
+
+@njit(cache=True)
+def select_query(scan, n, max_range, spacing, max_points, out):
+    """The query's points: within ``max_range``, at least ``spacing`` apart along the scan,
+    at most ``max_points`` of them (thinned evenly). Returns how many."""
+    kept = 0
+    lx, ly = np.inf, np.inf
+    sp2 = spacing * spacing
+    r2 = max_range * max_range
+    for k in range(n):
+        x, y = scan[k, 0], scan[k, 1]
+        if x * x + y * y > r2:
+            continue
+        if (x - lx) ** 2 + (y - ly) ** 2 < sp2:
+            continue
+        out[kept, 0], out[kept, 1] = x, y
+        lx, ly = x, y
+        kept += 1
+        if kept == out.shape[0]:
+            break
+    if kept <= max_points:
+        return kept
+    for k in range(max_points):  # evenly thinned, in place (k ≤ source index)
+        src = (k * kept) // max_points
+        out[k, 0], out[k, 1] = out[src, 0], out[src, 1]
+    return max_points
+
+
+def heading_step(resolution: float, reach: float) -> float:
+    """The angle that moves a point ``reach`` away by one cell (Cartographer's choice)."""
+    return math.acos(max(1.0 - resolution * resolution / (2.0 * reach * reach), -1.0))
+
+
+class PlaceMap:
+    """A saved map rendered for the global search: the hit pyramid and where the robot may stand,
+    over the bounding box of the node scans. Built once (start-up); read-only afterwards."""
+
+    def __init__(self, poses, points, counts, n_nodes: int, config: RelocalizationConfig,
+                 max_gap: float):
+        c = self.config = config
+        res = c.resolution
+        self.n_levels = c.levels + 1
+        # headings are searched in groups on the top heading_levels levels (docs/method.md §8)
+        first = c.levels - c.heading_levels
+        self.groups = np.array([1 << max(h - first, 0) for h in range(self.n_levels)], np.int64)
+        self.shifts = np.array([bound_shift(int(g)) for g in self.groups], np.int64)
+        # A bound's block may start this far before the map and still cover part of it: the
+        # hit grid is padded with that much empty space (docs/method.md §8).
+        pad = (1 << c.levels) + 2 * int(self.shifts[-1])
+        reach = c.map_range
+        ends = [poses[:n_nodes, :2]]
+        for m in range(n_nodes):
+            pts = points[m, : counts[m]]
+            pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= reach]
+            if len(pts):
+                ends.append(compose(poses[m], np.c_[pts, np.zeros(len(pts))])[:, :2])
+        ends = np.vstack(ends)
+        lo = ends.min(axis=0) - 3 * c.hit_sigma - pad * res
+        hi = ends.max(axis=0) + 3 * c.hit_sigma + pad * res
+        nx, ny = (np.ceil((hi - lo) / res).astype(int) + 1).tolist()
+        if nx * ny > c.max_cells:
+            raise ValueError(f"the map needs {nx}×{ny} cells at {res} m for the global search, "
+                             f"more than relocalization.max_cells={c.max_cells}")
+        self.origin = lo  # cell (i, j) is the point origin + (j, i)·res
+        pyramid = np.zeros((self.n_levels + 1, ny, nx), np.uint8)
+        d2 = np.zeros((ny, nx))
+        render_hits(points, counts, poses, n_nodes, reach, max_gap, lo[0], lo[1], res,
+                    c.hit_sigma, d2, pyramid[0])
+        pool_pyramid(pyramid)
+        self.hits = pyramid[0].copy()
+        self.bounds = np.zeros((self.n_levels, ny, nx), np.uint8)
+        pool_bounds(pyramid, self.shifts, self.bounds)
+        del pyramid, d2
+        # Where the robot may stand: cells the node scans saw through (log-odds below zero).
+        logodds = np.zeros((ny, nx), np.float32)
+        region = np.zeros((ny, nx), np.uint8)
+        for m in range(n_nodes):
+            integrate_scan(logodds, region, lo[0], lo[1], res, poses[m], points[m], counts[m],
+                           reach)
+        self.free = np.zeros((self.n_levels, ny, nx), np.uint8)
+        self.free[0] = logodds < 0
+        pool_pyramid(self.free)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.hits.shape
+
+    def cell_of(self, x: float, y: float) -> tuple[int, int]:
+        res = self.config.resolution
+        return (int(math.floor((y - self.origin[1]) / res + 0.5)),
+                int(math.floor((x - self.origin[0]) / res + 0.5)))
+
+    def position_of(self, row: int, col: int) -> tuple[float, float]:
+        res = self.config.resolution
+        return self.origin[0] + col * res, self.origin[1] + row * res
+
+    def score(self, points, n: int, pose) -> float:
+        """The mean hit value (0–1) of ``points[:n]`` (robot frame) placed at ``pose``."""
+        if n == 0:
+            return 0.0
+        world = compose(pose, np.c_[points[:n], np.zeros(n)])
+        res = self.config.resolution
+        cols = np.floor((world[:, 0] - self.origin[0]) / res + 0.5).astype(int)
+        rows = np.floor((world[:, 1] - self.origin[1]) / res + 0.5).astype(int)
+        ny, nx = self.shape
+        inside = (rows >= 0) & (rows < ny) & (cols >= 0) & (cols < nx)
+        return float(self.hits[rows[inside], cols[inside]].sum()) / (HIT_MAX * n)

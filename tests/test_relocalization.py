@@ -1,0 +1,203 @@
+"""Global relocalization (runtime.place_search, runtime.relocalization): the branch-and-bound
+search is exact, a kidnapped robot is found with no prior, and a symmetric world is called
+ambiguous rather than answered wrongly."""
+
+import math
+import tracemalloc
+
+import numpy as np
+import pytest
+
+from runtime.config import SlamConfig, override
+from runtime.node_scans import NodeScans
+from runtime.place_search import (
+    HIT_MAX,
+    PlaceMap,
+    bound_shift,
+    branch_and_bound,
+    pool_bounds,
+    pool_pyramid,
+    rotate_query,
+)
+from runtime.pose import between
+from runtime.relocalization import Ambiguous, Located, Relocalizer
+from runtime.scan import PointScan
+from runtime.warm_up import loop_path, room_world, scan_at
+
+ANGLES = np.linspace(-np.pi, np.pi, 360, endpoint=False)
+
+
+def map_from(world, poses, max_range=12.0):
+    """Node scans taken at known poses: the map a perfect mapping run would have saved."""
+    nodes = NodeScans(len(poses), len(ANGLES))
+    scan = PointScan(len(ANGLES))
+    for k, p in enumerate(poses):
+        scan.set_ranges(scan_at(world, p, ANGLES, max_range), ANGLES, 0.05, max_range)
+        nodes.store(k, scan)
+    return np.asarray(poses, np.float64), nodes
+
+
+def query(world, pose, rng, max_range=12.0):
+    ranges = scan_at(world, pose, ANGLES, max_range, noise=0.01, rng=rng)
+    return PointScan.from_ranges(ranges, ANGLES, 0.05, max_range)
+
+
+def close(a, b, distance=0.3, angle=math.radians(5)):
+    e = between(a, b)
+    return math.hypot(e[0], e[1]) <= distance and abs(e[2]) <= angle
+
+
+def test_branch_and_bound_finds_the_exact_best_pose():
+    """Against brute force over every standable cell and heading of a random map."""
+    rng = np.random.default_rng(4)
+    ny, nx, levels, n_headings, n = 40, 52, 3, 24, 12
+    groups = np.array([1, 1, 2, 4], np.int64)
+    shifts = np.array([bound_shift(int(g)) for g in groups], np.int64)
+    pyramid = np.zeros((levels + 2, ny, nx), np.uint8)
+    pyramid[0] = rng.integers(0, 256, size=(ny, nx)) * (rng.random((ny, nx)) < 0.3)
+    pool_pyramid(pyramid)
+    bounds = np.zeros((levels + 1, ny, nx), np.uint8)
+    pool_bounds(pyramid, shifts, bounds)
+    free = np.zeros((levels + 1, ny, nx), np.uint8)
+    free[0, 8:32, 10:44] = rng.random((24, 34)) < 0.5
+    pool_pyramid(free)
+    points = rng.uniform(-0.6, 0.6, size=(n, 2))  # 0.1 m cells: within 6 cells
+    step = 2 * math.pi / n_headings
+    offsets = np.zeros((n_headings, n, 2), np.int64)
+    rotate_query(points, n, 0.1, step, n_headings, offsets)
+    brute = np.zeros((n_headings, ny, nx), np.int64)
+    for a in range(n_headings):
+        for i, j in zip(*np.nonzero(free[0])):
+            r, q = i + offsets[a, :, 0], j + offsets[a, :, 1]
+            ok = (r >= 0) & (r < ny) & (q >= 0) & (q < nx)
+            brute[a, i, j] = int(pyramid[0][r[ok], q[ok]].astype(np.int64).sum())
+    roots = np.zeros((n_headings * 64, 5), np.int64)
+    stack = np.zeros((64, 5), np.int64)
+    found = np.zeros((4, 4), np.int64)
+    n_found, scored = branch_and_bound(bounds, shifts, groups, free, offsets, n, n_headings, 1,
+                                       1.0, 0, 0, roots, stack, found)
+    assert n_found == 1
+    assert found[0, 0] == brute.max()
+    assert brute[found[0, 1], found[0, 2], found[0, 3]] == brute.max()
+    assert scored < brute.size  # and it scored fewer blocks than there are poses
+
+
+@pytest.fixture(scope="module")
+def room():
+    path = loop_path(60)
+    world = room_world(3, size=(12.0, 9.0), boxes=14, walls=0, keep_clear=path)
+    poses, nodes = map_from(world, path)
+    return world, path, Relocalizer(SlamConfig(), poses, nodes, len(poses))
+
+
+def test_a_kidnapped_robot_is_found_with_no_prior(room):
+    world, path, relocalizer = room
+    rng = np.random.default_rng(1)
+    answers = []
+    for _ in range(20):
+        k = rng.integers(len(path))
+        truth = path[k] + [rng.normal(0, 0.2), rng.normal(0, 0.2), rng.uniform(-np.pi, np.pi)]
+        answer = relocalizer.relocalize(query(world, truth, rng))
+        assert not isinstance(answer, Located) or close(answer.pose, truth), (truth, answer)
+        answers.append(answer)
+    found = sum(isinstance(a, Located) for a in answers)
+    assert found >= 18, f"found {found} of 20"
+
+
+def test_two_identical_rooms_are_ambiguous_not_wrong():
+    room = room_world(5, size=(6.0, 5.0), boxes=4, walls=1)
+    twin = room + [8.0, 0.0, 8.0, 0.0]  # the same room, 8 m to the right, walls apart
+    world = np.vstack([room, twin])
+    poses = [(x + dx, y, t) for dx in (0.0, 8.0)
+             for x, y, t in ((1.5, 1.5, 0.0), (4.5, 1.5, 1.6), (4.5, 3.5, 3.1), (1.5, 3.5, -1.6),
+                             (3.0, 2.5, 0.8))]
+    poses, nodes = map_from(world, poses)
+    relocalizer = Relocalizer(SlamConfig(), poses, nodes, len(poses))
+    rng = np.random.default_rng(2)
+    for truth in ((2.5, 2.0, 0.4), (10.8, 3.0, -2.0)):
+        answer = relocalizer.relocalize(query(world, truth, rng))
+        assert isinstance(answer, Ambiguous), answer
+        assert len(answer.poses) >= 2
+        # both rooms are among the explanations, each at the matching place in its room
+        assert any(close(p, truth) for p in answer.poses)
+        mirror = (truth[0] + (8.0 if truth[0] < 8 else -8.0), truth[1], truth[2])
+        assert any(close(p, mirror) for p in answer.poses)
+
+
+def test_a_scan_from_elsewhere_is_not_placed(room):
+    _, _, relocalizer = room
+    other = room_world(11, size=(7.0, 14.0), boxes=3, walls=2)
+    answer = relocalizer.relocalize(query(other, (3.5, 7.0, 0.2), np.random.default_rng(3)))
+    assert isinstance(answer, Ambiguous) and not answer.poses, answer
+
+
+def test_confirmation_merges_scans_by_their_motion(room):
+    world, path, relocalizer = room
+    rng = np.random.default_rng(5)
+    window = path[10:16]
+    scans = [query(world, p, rng) for p in window]
+    motions = [between(p, window[-1]) for p in window]
+    answer = relocalizer.relocalize_merged(scans, motions)
+    assert isinstance(answer, Located) and close(answer.pose, window[-1], 0.1), answer
+
+
+def test_the_map_must_fit_its_cell_capacity(room):
+    world, path, _ = room
+    poses, nodes = map_from(world, path[:5])
+    config = override(SlamConfig(), {"relocalization.max_cells": 1000})
+    with pytest.raises(ValueError, match="relocalization.max_cells"):
+        Relocalizer(config, poses, nodes, len(poses))
+
+
+def test_the_search_allocates_nothing_after_warm_up(room):
+    world, path, relocalizer = room
+    place = relocalizer.place
+    rng = np.random.default_rng(6)
+    q = query(world, path[3], rng)
+    n = 64
+    pts = np.ascontiguousarray(q.points[:: max(q.count // n, 1)][:n])
+    n = len(pts)
+    rotate_query(pts, n, place.config.resolution, 2 * math.pi / relocalizer.n_headings,
+                 relocalizer._offsets.shape[0], relocalizer._offsets)
+    args = (place.bounds, place.shifts, place.groups, place.free, relocalizer._offsets, n,
+            relocalizer.n_headings, int(0.5 * HIT_MAX * n), 0.9, 10, 20, relocalizer._roots,
+            relocalizer._stack, relocalizer._found)
+    branch_and_bound(*args)
+    tracemalloc.start()
+    try:
+        branch_and_bound(*args)
+        before, _ = tracemalloc.get_traced_memory()
+        for _ in range(20):
+            branch_and_bound(*args)
+        after, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert after - before <= 256 and peak - before < 4096, (after - before, peak - before)
+
+
+def test_place_map_scores_the_true_pose_near_one(room):
+    world, path, relocalizer = room
+    q = query(world, path[7], np.random.default_rng(7))
+    place: PlaceMap = relocalizer.place
+    assert place.score(q.points, q.count, path[7]) > 0.8
+    assert place.score(q.points, q.count, path[7] + [1.0, 0.0, 0.5]) < 0.5
+
+
+def test_bench_localize_maps_a_log_and_scores_its_queries(tmp_path):
+    """The benchmark's pipeline on a short simulated survey: the mapping replay leaves a
+    session, the queries are judged against its trajectory, every figure is reported."""
+    from scripts.bench.localize import bench_log, judge, mapping_session
+    from scripts.simlog import write_simlog
+
+    log = tmp_path / "hall.clf"
+    write_simlog(log, "hall", seed=2, lidar="rplidar-a1", rate_hz=4.0, seconds=60)
+    session = mapping_session("hall", log, tmp_path / "maps", echo=lambda *_: None)
+    assert session.exists()
+    row = bench_log("hall", log, session, queries=6, seed=0, echo=lambda *_: None)
+    rates = ("success_rate", "wrong_rate", "ambiguous_rate")
+    assert abs(sum(row[k] for k in rates) - 1.0) < 1e-9
+    assert row["wrong_rate"] == 0.0 and row["success_rate"] > 0.5, row
+    assert 0 < row["ms_median"] <= row["ms_p99"]
+    assert judge(Ambiguous((), (), "none"), np.zeros(3)) == "ambiguous"
+    assert judge(Located(np.array([0.31, 0.0, 0.0]), 1.0), np.zeros(3)) == "wrong"
+    assert judge(Located(np.array([0.2, 0.1, 0.05]), 1.0), np.zeros(3)) == "success"
