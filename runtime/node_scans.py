@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from runtime.pose import place_points_nb
+from runtime.pose import compose, place_points_nb
 from runtime.scan import PointScan
 
 
@@ -48,6 +48,17 @@ class NodeScans:
                                 out.buffer, n)
         out.count = n
         return out
+
+    def extent_points(self, poses, n_nodes: int, reach: float) -> np.ndarray:
+        """The node positions and every stored point within ``reach`` of its node, in the
+        map frame ``poses`` gives (``(M, 2)``): what a map of the nodes must cover."""
+        out = [poses[:n_nodes, :2]]
+        for k in range(n_nodes):
+            pts = self.scan_points(k)
+            near = pts[np.hypot(pts[:, 0], pts[:, 1]) <= reach]
+            if len(near):
+                out.append(compose(poses[k], np.c_[near, np.zeros(len(near))])[:, :2])
+        return np.vstack(out)
 
     # ------------------------------------------------------------------ state
     def state(self, n_nodes: int) -> dict:

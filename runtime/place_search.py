@@ -11,12 +11,14 @@ Branch and bound (Olson's multi-resolution correlative search, as Cartographer u
 ``h`` of a pyramid holds, at ``(i, j)``, the largest hit value of the ``2ʰ × 2ʰ`` block of cells
 starting there, so scoring a heading and a block of ``2ʰ × 2ʰ`` positions on level ``h`` bounds
 every position in it from above. Blocks are split best first and dropped as soon as their bound
-cannot beat the best pose found, so the answer is the exact best pose on the grid, found without
-scoring most of the poses. A block in which the robot could not stand (no cell seen free by the
-map's scans) is never scored.
+falls below the floor, so the answer is the exact best pose on the grid, found without scoring
+most of the poses. A block in which the robot could not stand (no cell seen free by the map's
+scans) is never scored.
 
 To know whether a second, *distinct* pose explains the scan about as well (a symmetric room, a
-corridor), the same search runs again with the poses near the answers found so far excluded.
+corridor), the floor is ``ratio`` of the best so far rather than the best itself, and every pose
+above it is kept, merged with a kept pose of the same place: any distinct one left at the end is
+a rival.
 
 Everything here is compiled and works on buffers allocated when the map is loaded.
 """
@@ -30,6 +32,7 @@ from numba import njit
 
 from runtime.config import RelocalizationConfig
 from runtime.distance_field import splat_segment
+from runtime.node_scans import NodeScans
 from runtime.occupancy_grid import integrate_scan
 from runtime.pose import compose
 
@@ -336,7 +339,7 @@ class PlaceMap:
     """A saved map rendered for the global search: the hit pyramid and where the robot may stand,
     over the bounding box of the node scans. Built once (start-up); read-only afterwards."""
 
-    def __init__(self, poses, points, counts, n_nodes: int, config: RelocalizationConfig,
+    def __init__(self, poses, nodes: NodeScans, n_nodes: int, config: RelocalizationConfig,
                  max_gap: float):
         c = self.config = config
         res = c.resolution
@@ -349,13 +352,8 @@ class PlaceMap:
         # hit grid is padded with that much empty space (docs/method.md §8).
         pad = (1 << c.levels) + 2 * int(self.shifts[-1])
         reach = c.map_range
-        ends = [poses[:n_nodes, :2]]
-        for m in range(n_nodes):
-            pts = points[m, : counts[m]]
-            pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= reach]
-            if len(pts):
-                ends.append(compose(poses[m], np.c_[pts, np.zeros(len(pts))])[:, :2])
-        ends = np.vstack(ends)
+        points, counts = nodes.points, nodes.counts
+        ends = nodes.extent_points(poses, n_nodes, reach)
         lo = ends.min(axis=0) - 3 * c.hit_sigma - pad * res
         hi = ends.max(axis=0) + 3 * c.hit_sigma + pad * res
         nx, ny = (np.ceil((hi - lo) / res).astype(int) + 1).tolist()
@@ -385,11 +383,6 @@ class PlaceMap:
     @property
     def shape(self) -> tuple[int, int]:
         return self.hits.shape
-
-    def cell_of(self, x: float, y: float) -> tuple[int, int]:
-        res = self.config.resolution
-        return (int(math.floor((y - self.origin[1]) / res + 0.5)),
-                int(math.floor((x - self.origin[0]) / res + 0.5)))
 
     def position_of(self, row: int, col: int) -> tuple[float, float]:
         res = self.config.resolution

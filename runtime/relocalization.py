@@ -13,8 +13,8 @@
    the grid's answer, as loop closure does.
 
 Confirmation merges the scans of the next ``confirm_seconds`` — placed by the motion tracked
-between them — into one query: what one scan of a corridor cannot tell apart, a metre of travel
-usually can (:meth:`Relocalizer.relocalize_merged`).
+between them — into one query (:meth:`Relocalizer.relocalize_merged`), meant to tell apart
+what one scan cannot; measured, it rarely does in corridors (README, ``bench localize``).
 """
 
 from __future__ import annotations
@@ -64,8 +64,7 @@ class Relocalizer:
         rc = self.config = config.relocalization
         self.poses = poses[:n_nodes]
         self.nodes, self.n_nodes = nodes, n_nodes
-        self.place = PlaceMap(poses, nodes.points, nodes.counts, n_nodes, rc,
-                              config.matcher.max_gap)
+        self.place = PlaceMap(poses, nodes, n_nodes, rc, config.matcher.max_gap)
         self.n_headings = int(math.ceil(2 * math.pi / heading_step(rc.resolution,
                                                                   rc.query_range)))
         ny, nx = self.place.shape
@@ -73,7 +72,7 @@ class Relocalizer:
         group = int(self.place.groups[-1])
         groups = -(-self.n_headings // group)
         roots = groups * (-(-ny // top)) * (-(-nx // top))
-        self._query = np.zeros((max(config.sensor.max_points, rc.query_points) * 32, 2))
+        self._query = np.zeros((config.sensor.max_points, 2))  # a larger scan gets its own
         # headings past the last (a group's middle may lie there) wrap around the circle
         self._offsets = np.zeros((groups * group, rc.query_points, 2), np.int64)
         self._roots = np.zeros((roots, 5), np.int64)
@@ -89,7 +88,7 @@ class Relocalizer:
     # ------------------------------------------------------------------ the answer
     def relocalize(self, scan: PointScan) -> Located | Ambiguous:
         """Where ``scan`` (robot frame) was taken in the map, or :class:`Ambiguous`."""
-        return self._answer(scan, self._query)
+        return self._answer(scan)
 
     def relocalize_merged(self, scans, motions) -> Located | Ambiguous:
         """Confirmation: ``scans`` (robot frames) merged into the last one's frame by
@@ -101,10 +100,11 @@ class Relocalizer:
             merged.buffer[n : n + s.count] = pts[:, :2]
             n += s.count
         merged.count = n
-        return self._answer(merged, np.zeros((n, 2)))
+        return self._answer(merged)
 
-    def _answer(self, scan: PointScan, query) -> Located | Ambiguous:
+    def _answer(self, scan: PointScan) -> Located | Ambiguous:
         rc = self.config
+        query = self._query if scan.count <= len(self._query) else np.zeros((scan.count, 2))
         n = select_query(scan.buffer, scan.count, rc.query_range, rc.query_spacing,
                          rc.query_points, query)
         if n < 3:

@@ -24,7 +24,6 @@ from runtime.config import SlamConfig
 from runtime.front_end import FrontEnd
 from runtime.node_scans import NodeScans
 from runtime.occupancy_grid import OccupancyGrid
-from runtime.pose import compose
 from runtime.pose_graph import PoseGraph
 from runtime.scan import PointScan
 
@@ -122,14 +121,8 @@ class GraphSlam:
     def global_map(self) -> OccupancyGrid:
         """An occupancy grid covering the node poses and their scans within the map's reach."""
         m, g = self.config.map, self.graph
-        n = g.n_nodes
-        corners = [g.poses[:n, :2]]
-        for k in range(n):
-            pts = self.node_scan(k)
-            near = pts[np.hypot(pts[:, 0], pts[:, 1]) <= m.max_range]
-            if len(near):
-                corners.append(compose(g.poses[k], np.c_[near, np.zeros(len(near))])[:, :2])
-        grid = OccupancyGrid.covering(np.vstack(corners), m.resolution, m.margin, m.max_cells)
+        corners = self.nodes.extent_points(g.poses, g.n_nodes, m.max_range)
+        grid = OccupancyGrid.covering(corners, m.resolution, m.margin, m.max_cells)
         return self.draw_map(grid)
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:

@@ -44,14 +44,22 @@ def _bench_posegraph(args) -> int:
     return 0
 
 
-def _bench_slam(args) -> int:
-    from scripts.bench.slam import LOGS, bench_slam
-    from scripts.datasets import find_datasets
+def _logs(args) -> tuple[str, ...]:
+    """The ``--datasets`` names, each one ``bench slam`` knows."""
+    from scripts.bench.slam import LOGS
 
     logs = tuple(d.strip() for d in args.datasets.split(",") if d.strip())
     for d in logs:
         if d not in LOGS:
             raise SystemExit(f"unknown dataset {d!r}; choose from {', '.join(LOGS)}")
+    return logs
+
+
+def _bench_slam(args) -> int:
+    from scripts.bench.slam import bench_slam
+    from scripts.datasets import find_datasets
+
+    logs = _logs(args)
     modes = {"both": (True, False), "odometry": (True,), "scans": (False,)}[args.modes]
     optimizers = tuple(o.strip() for o in args.optimizers.split(",") if o.strip())
     seeds = tuple(int(v) for v in args.seeds.split(",") if v.strip())
@@ -62,13 +70,9 @@ def _bench_slam(args) -> int:
 
 def _bench_localize(args) -> int:
     from scripts.bench.localize import bench_localize
-    from scripts.bench.slam import LOGS
     from scripts.datasets import find_datasets
 
-    logs = tuple(d.strip() for d in args.datasets.split(",") if d.strip())
-    for d in logs:
-        if d not in LOGS:
-            raise SystemExit(f"unknown dataset {d!r}; choose from {', '.join(LOGS)}")
+    logs = _logs(args)
     if args.queries < 1:
         raise SystemExit(f"--queries must be at least 1, got {args.queries}")
     bench_localize(find_datasets(args.data), logs, args.queries, args.seed, args.maps, args.json)
