@@ -327,9 +327,31 @@ class RelocalizationConfig(Section):
     refine_window: tuple[float, float, float] = _setting(
         (0.15, 0.15, 0.03), "half-widths of the swarm's polish around the search's cell", gt=0)
     refine_nodes: int = _setting(5, "nearest node scans the polish matches against", ge=1)
-    confirm_seconds: float = _setting(2.0, "s of scans merged to confirm a first answer", ge=0)
+    confirm_seconds: float = _setting(
+        2.0, "s of scans over which candidate poses are tracked (or merged) before one is "
+        "committed", ge=0)
     max_cells: int = _setting(50_000_000, "cells of the hit grid at most (memory: levels + 2 "
                               "bytes per cell)", ge=16)
+
+
+@dataclass(frozen=True)
+class LocalizationConfig(Section):
+    """Tracking in a saved map that never changes (docs/method.md §9)."""
+
+    KEY = "localization"
+    submap_nodes: int = _setting(5, "saved node scans nearest the pose that form the tracking "
+                                 "reference", ge=1)
+    heading_weight: float = _setting(
+        2.0, "m per rad: a saved node's heading difference counts as this much distance when "
+        "the nearest are chosen (a scan sees what its node faced)", ge=0)
+    reanchor_distance: float = _setting(
+        0.3, "m: the reference is rebuilt once a saved node is this much nearer than its anchor",
+        ge=0)
+    lost_scans: int = _setting(5, "poor matches in a row that mean the pose is lost (the global "
+                               "search follows)", ge=1)
+    confirm_ratio: float = _setting(
+        0.97, "after confirm_seconds, a candidate whose mean fit is below this share of the "
+        "best one's is dropped", gt=0, le=1)
 
 
 @dataclass(frozen=True)
@@ -422,6 +444,8 @@ class SlamConfig(Section):
     optimizer: OptimizerConfig = _section(_slam_optimizer, "Gauss–Newton (Eq. 21)")
     relocalization: RelocalizationConfig = _section(RelocalizationConfig,
                                                     "the global search in a saved map")
+    localization: LocalizationConfig = _section(LocalizationConfig,
+                                                "tracking in a saved map (localization mode)")
     map: MapConfig = _section(MapConfig, "the occupancy grid")
     runtime: RuntimeConfig = _section(RuntimeConfig, "the fixed-rate loop")
 

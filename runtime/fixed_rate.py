@@ -37,7 +37,10 @@ from runtime import session
 from runtime.config import SlamConfig, from_dict, override, to_dict
 from runtime.inbox import ScanInbox
 from runtime.scan import PointScan
-from runtime.slam import GraphSlam, StepResult
+from runtime.localization import Localizer
+from runtime.map_tracking import SavedMap
+from runtime.slam import GraphSlam
+from runtime.step_result import StepResult
 from runtime.warm_up import LoopDrive
 
 PAGE = 4096  # bytes: commit_memory writes one byte per page
@@ -121,10 +124,14 @@ class SlamRuntime:
     """One class for the simulator, the serial driver and log replay (see module doc)."""
 
     def __init__(self, config: SlamConfig | None = None, seed: int = 0, initial_pose=None,
-                 clock=time.perf_counter):
+                 clock=time.perf_counter, saved_map: SavedMap | None = None):
+        """``saved_map``: localization mode — track in that map, never changing it
+        (:class:`runtime.localization.Localizer`; ``initial_pose`` None: search for it)."""
         self.config = config or SlamConfig()
         rc = self.config.runtime
-        self.slam = GraphSlam(self.config, seed=seed, initial_pose=initial_pose)
+        self.slam = (GraphSlam(self.config, seed=seed, initial_pose=initial_pose)
+                     if saved_map is None else
+                     Localizer(self.config, saved_map, seed=seed, initial_pose=initial_pose))
         self.seed = seed
         self.clock = clock
         sensor = self.config.sensor
@@ -191,6 +198,8 @@ class SlamRuntime:
             scratch.process(scan, odometry, float(k))
         if scratch.slam.loops_closed == 0:
             raise RuntimeError("warm-up closed no loop: the loop-closure kernels stay cold")
+        if self.localizing:  # the global search and map tracking too
+            self.slam.warm_up()
         return time.perf_counter() - t0
 
     def process(self, scan: PointScan, odometry=None, stamp: float = 0.0) -> StepResult | None:
@@ -201,7 +210,7 @@ class SlamRuntime:
     def drain(self) -> int:
         """Finish all deferred back-end work now, however long it takes (end of a replay,
         before saving a map). Returns the slices run."""
-        return self.slam.back_end.work(self.clock, None)
+        return self.slam.drain(self.clock)
 
     def run(self, stop: threading.Event, max_ticks: int | None = None, on_tick=None) -> None:
         """The fixed-rate loop: a tick every period until ``stop`` is set. A tick that overruns
@@ -231,7 +240,7 @@ class SlamRuntime:
         available = start + rc.front_end_share * rc.tick_budget - self.clock()
         share = 1.0 if self.front_end_cost <= 0 else available / self.front_end_cost
         share = min(max(share, rc.min_evaluation_share), 1.0)
-        self.slam.front_end.matcher.set_evaluation_share(share)
+        self.slam.set_evaluation_share(share)
         self.stats.evaluation_share = share
         return share
 
@@ -244,11 +253,6 @@ class SlamRuntime:
     # ------------------------------------------------------------------ results
     @property
     def status(self) -> str:
-        dropped = self.slam.back_end.dropped
-        if dropped:
-            extra = (f"loop queue full: {dropped} loop searches dropped "
-                     f"(raise runtime.loop_queue or runtime.tick_budget)")
-            return extra if self.slam.status == "ok" else f"{self.slam.status}; {extra}"
         return self.slam.status
 
     def pose(self) -> np.ndarray:
@@ -262,22 +266,9 @@ class SlamRuntime:
 
     def report(self) -> dict:
         """Statistics a person or a benchmark wants: rate, latency, misses, SLAM, capacity."""
-        b, slam = self.slam.back_end, self.slam
         out = self.stats.summary()
-        out.update({
-            "stale_scans": self.inbox.stale,
-            "empty_scans": self.inbox.empty,
-            "nodes": int(slam.graph.n_nodes),
-            "edges": int(slam.graph.n_edges),
-            "loops_accepted": slam.loops_closed,
-            "loop_searches": {"enqueued": b.enqueued, "done": b.searched, "pending": b.size
-                              + (b.node >= 0), "dropped": b.dropped},
-            "back_end_slices": {"select": int(b.slices[0]), "align": int(b.slices[1]),
-                                "close": int(b.slices[2])},
-            "deferred_ticks": b.deferred,
-            "forced_slices": b.forced,
-            "status": self.status,
-        })
+        out.update({"stale_scans": self.inbox.stale, "empty_scans": self.inbox.empty,
+                    **self.slam.report(), "status": self.status})
         return out
 
     # ------------------------------------------------------------------ sessions
@@ -293,19 +284,55 @@ class SlamRuntime:
         self.inbox.restore(state["inbox"])
         self.front_end_cost = float(state["front_end_cost"])
 
+    @property
+    def localizing(self) -> bool:
+        """Localization mode: the map is a saved one and stays as it was."""
+        return isinstance(self.slam, Localizer)
+
     def save(self, path) -> None:
         """The whole state to one file, atomically (see :mod:`runtime.session`)."""
+        if self.localizing:
+            raise ValueError("a localization run changes no session: its map is read-only "
+                             "(save the trajectory instead)")
         session.write_session(path, self.state())
 
     @classmethod
-    def resume(cls, path, clock=time.perf_counter) -> SlamRuntime:
-        """A runtime continuing the session saved at ``path``."""
+    def resume(cls, path, clock=time.perf_counter, anywhere: bool = False,
+               changes: dict | None = None) -> SlamRuntime:
+        """A runtime continuing the session saved at ``path``. ``anywhere``: the new run may
+        start at any place in the saved map — it is localized first, then joined to the graph
+        (multi-session mapping, :meth:`GraphSlam.rejoin`). ``changes``: configuration
+        overrides (dotted keys), e.g. a replay's trajectory capacity."""
+
+        def build(state, config):
+            runtime = cls(config, seed=int(state["seed"]), clock=clock)
+            runtime.restore(state)  # the initial pose too
+            if anywhere:
+                runtime.slam.rejoin(runtime.seed)
+            return runtime
+
+        return cls._from_session(path, build, changes)
+
+    @classmethod
+    def localize(cls, path, initial_pose=None, clock=time.perf_counter,
+                 changes: dict | None = None) -> SlamRuntime:
+        """Localization mode in the map saved at ``path`` (read, never written): from
+        ``initial_pose`` if known, else the global search finds it."""
+
+        def build(state, config):
+            saved = SavedMap.from_state(state["slam"], config.sensor.max_points)
+            return cls(config, seed=int(state["seed"]), initial_pose=initial_pose, clock=clock,
+                       saved_map=saved)
+
+        return cls._from_session(path, build, changes)
+
+    @staticmethod
+    def _from_session(path, build, changes):
         state = session.read_session(path)
         try:
-            runtime = cls(from_dict(state["config"]), seed=int(state["seed"]), clock=clock)
-            runtime.restore(state)  # the initial pose too
+            config = from_dict(state["config"])
+            return build(state, override(config, changes) if changes else config)
         except KeyError as exc:
             raise session.SessionError(f"{path}: missing field {exc.args[0]!r}") from None
         except (ValueError, IndexError, TypeError) as exc:
             raise session.SessionError(f"{path}: {exc}") from None
-        return runtime

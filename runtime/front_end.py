@@ -126,6 +126,29 @@ class FrontEnd:
         self.rebuild_reference()
         return True
 
+    def join(self, scan: PointScan, odometry, stamp: float, anchor: int, rel) -> bool:
+        """A new session's first node: ``scan`` at ``rel`` in saved node ``anchor``'s frame,
+        where localization placed and confirmed it (docs/method.md §9), joined to the anchor
+        by an edge; mapping goes on from it. False when the capacity is reached."""
+        g = self.graph
+        if g.n_nodes >= g.max_nodes or g.n_edges >= g.max_edges:
+            self.status = CAPACITY_STATUS
+            return False
+        rel = np.asarray(rel, np.float64)
+        node = g.add_node(compose(g.poses[anchor], rel), stamp)
+        info = self.information()
+        g.add_edge(anchor, node, rel, info, ODOMETRY)
+        cov = self.nodes.cov
+        propagate_covariance(cov[anchor], g.poses[anchor], rel, np.linalg.inv(info), cov[node])
+        self.nodes.store(node, scan)
+        self.keyframe = node
+        self.rel[:], self.motion[:] = 0.0, 0.0
+        self.weak, self.have_odometry = False, False
+        self._predicted_motion(odometry)  # the new run's odometry starts here
+        self.rebuild_reference()
+        self._record(stamp)
+        return True
+
     def rebuild_reference(self) -> None:
         """The keyframe's reference maps from the stored node scans (a restored session
         rebuilds exactly what the running one had)."""

@@ -15,26 +15,19 @@ start-up.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from runtime.back_end import BackEnd
 from runtime.config import SlamConfig
 from runtime.front_end import FrontEnd
+from runtime.localization import TRACKING, Localizer
+from runtime.map_tracking import SavedMap
 from runtime.node_scans import NodeScans
 from runtime.occupancy_grid import OccupancyGrid
+from runtime.pose import between
 from runtime.pose_graph import PoseGraph
 from runtime.scan import PointScan
-
-
-@dataclass
-class StepResult:
-    pose: np.ndarray  # the scan's pose in the map frame, after this step's back-end work
-    node_added: bool
-    loop_closed: bool  # a loop closure was kept during this step
-    error: float  # λ of the front end's alignment
-    front_end_seconds: float = 0.0  # measured only when a clock is given
+from runtime.step_result import StepResult
 
 
 class GraphSlam:
@@ -47,6 +40,7 @@ class GraphSlam:
         self.nodes = NodeScans(c.capacity.max_nodes, c.sensor.max_points)
         self.front_end = FrontEnd(c, self.graph, self.nodes, seed, initial_pose)
         self.back_end = BackEnd(c, self.graph, self.nodes, self.front_end.information, seed + 1)
+        self.locator: Localizer | None = None  # set by rejoin()
 
     # ------------------------------------------------------------------ Alg. 4
     def step(self, scan: PointScan, odometry=None, stamp: float = 0.0, clock=None,
@@ -54,6 +48,8 @@ class GraphSlam:
         """One scan through Alg. 4: the front end, then the back end's loop search for a new
         node. Without ``budget_end`` the back end does all its pending work now (the lockstep
         schedule); with it, only the slices that fit before then (``clock`` reads the time)."""
+        if self.locator is not None:  # a resumed session, started at an unknown place
+            return self._rejoin(scan, odometry, stamp, clock)
         start = clock() if clock is not None else 0.0
         tracked = self.front_end.track(scan, odometry, stamp)  # Alg. 5 + Alg. 6
         took = clock() - start if clock is not None else 0.0
@@ -62,6 +58,27 @@ class GraphSlam:
         closed = self.run_back_end(clock, budget_end)
         pose = self.pose() if closed else tracked.pose
         return StepResult(pose, tracked.node_added, closed, tracked.error, took)
+
+    def rejoin(self, seed: int = 0) -> None:
+        """Multi-session mapping (docs/method.md §9): the next scans are first localized in the
+        map so far (searched for, then confirmed); the first confirmed pose becomes a node
+        joined to the nearest saved one, and mapping goes on from there."""
+        saved = SavedMap(self.graph.poses, self.nodes, self.graph.n_nodes)
+        self.locator = Localizer(self.config, saved, seed)
+
+    def _rejoin(self, scan, odometry, stamp, clock) -> StepResult:
+        located = self.locator.step(scan, odometry, stamp, clock)
+        if self.locator.phase != TRACKING:
+            return located  # no pose yet: nothing is added to the map
+        tracker = self.locator.trackers[0]
+        anchor = tracker.anchor
+        rel = between(tracker.pose, self.graph.poses[anchor])
+        joined = self.front_end.join(scan, odometry, stamp, anchor, rel)
+        self.locator = None
+        if joined:
+            self.back_end.enqueue(self.front_end.keyframe)  # Alg. 7 for the new node
+        closed = self.run_back_end(clock, None)
+        return StepResult(self.pose(), joined, closed, located.error, located.front_end_seconds)
 
     def run_back_end(self, clock=None, budget_end: float | None = None) -> bool:
         """Back-end slices (all pending work when ``budget_end`` is None); True if a loop
@@ -72,7 +89,9 @@ class GraphSlam:
 
     # ------------------------------------------------------------------ what consumers read
     def pose(self) -> np.ndarray:
-        """The latest scan's pose in the map frame."""
+        """The latest scan's pose in the map frame (NaN while a resumed session is localized)."""
+        if self.locator is not None:
+            return self.locator.pose()
         return self.front_end.pose()
 
     @property
@@ -108,7 +127,34 @@ class GraphSlam:
     @property
     def status(self) -> str:
         said = [s for s in (self.front_end.status, self.back_end.status) if s != "ok"]
+        dropped = self.back_end.dropped
+        if dropped:
+            said.append(f"loop queue full: {dropped} loop searches dropped "
+                        f"(raise runtime.loop_queue or runtime.tick_budget)")
         return "; ".join(said) if said else "ok"
+
+    def set_evaluation_share(self, share: float) -> None:
+        """The swarm's budget for the next scans, a share (0–1] of the configured one."""
+        self.front_end.matcher.set_evaluation_share(share)
+
+    def drain(self, clock) -> int:
+        """All deferred back-end work now, however long it takes; the slices run."""
+        return self.back_end.work(clock, None)
+
+    def report(self) -> dict:
+        """The graph, its loop search and the back end's slicing, for a run's report."""
+        b, g = self.back_end, self.graph
+        return {
+            "nodes": int(g.n_nodes),
+            "edges": int(g.n_edges),
+            "loops_accepted": self.loops_closed,
+            "loop_searches": {"enqueued": b.enqueued, "done": b.searched, "pending": b.size
+                              + (b.node >= 0), "dropped": b.dropped},
+            "back_end_slices": {"select": int(b.slices[0]), "align": int(b.slices[1]),
+                                "close": int(b.slices[2])},
+            "deferred_ticks": b.deferred,
+            "forced_slices": b.forced,
+        }
 
     def draw_map(self, grid: OccupancyGrid, max_range: float | None = None) -> OccupancyGrid:
         """Draw every node's scan from its optimised pose into ``grid`` (added to what is in

@@ -136,8 +136,25 @@ def _config_show(args) -> int:
 def _replay(args) -> int:
     from scripts.replay import replay
 
+    from_session = args.localize or args.resume
+    if from_session and (args.config or args.preset):
+        raise SystemExit("swarmslam replay: --localize and --resume take the configuration "
+                         "saved in the session; drop --config/--preset")
     m = replay(args.log, args.relations, args.optimizer, not args.no_odometry, args.out,
-               args.limit, args.seed, config=_config(args, DEFAULT_PRESET))
+               args.limit, args.seed,
+               config=None if from_session else _config(args, DEFAULT_PRESET),
+               localize=args.localize, resume=args.resume, start=args.start)
+    if args.localize:
+        r = m["runtime"]
+        print(f"{m['scans']} scans localized in {args.localize}: {m['scans_with_pose']} with a "
+              f"pose, {r['committed']} commits, {r['lost']} lost; latency "
+              f"{m['latency_ms_median']:.1f} ms median / {m['latency_ms_p99']:.1f} ms p99")
+        if "eT" in m:
+            print(f"relations: eT {m['eT']:.4f} ± {m['eT_std']:.4f} m, "
+                  f"eR {m['eR_deg']:.3f} ± {m['eR_std']:.3f} deg ({m['relations_used']} used)")
+        if args.out:
+            print(f"wrote {args.out}/trajectory.tum, localization.json (the session is unchanged)")
+        return 0
     print(f"{m['scans']} scans, {m['nodes']} nodes, {m['loops_accepted']} loops closed, "
           f"{m['real_time_factor']:.1f}x real time, latency {m['latency_ms_median']:.1f} ms "
           f"median / {m['latency_ms_p99']:.1f} ms p99")
@@ -178,7 +195,7 @@ def _lidar(args) -> int:
     from scripts.live import run_live
 
     run_live(args.port, args.model, args.mode, args.out, args.rate, args.seconds, args.resume,
-             config=_config(args, f"rplidar-{args.model}"))
+             config=_config(args, f"rplidar-{args.model}"), localize=args.localize)
     return 0
 
 
@@ -255,7 +272,11 @@ def build_parser() -> argparse.ArgumentParser:
     li.add_argument("--out", default="swarmslam-live", help="output folder (written on Ctrl-C)")
     li.add_argument("--rate", type=float, help="SLAM ticks per second (default: the configuration's, 10)")
     li.add_argument("--seconds", type=float, help="stop after this long (default: Ctrl-C)")
-    li.add_argument("--resume", help="continue a saved session file")
+    saved = li.add_mutually_exclusive_group()
+    saved.add_argument("--resume", metavar="SESSION",
+                       help="extend a saved session's map from wherever the scanner is in it")
+    saved.add_argument("--localize", metavar="SESSION",
+                       help="localize in a saved session's map (never changed), no prior")
     _config_options(li, "the model's preset")
     li.set_defaults(func=_lidar)
     em = sub.add_parser("emulate", help="a virtual RPLidar on a pseudo-terminal")
@@ -290,6 +311,14 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--out", default="swarmslam-replay", help="output folder")
     rp.add_argument("--limit", type=int, help="only the first N scans")
     rp.add_argument("--seed", type=int, default=0)
+    rp.add_argument("--start", type=int, default=0, help="the first scan replayed")
+    saved = rp.add_mutually_exclusive_group()
+    saved.add_argument("--localize", metavar="SESSION",
+                       help="localize in a saved session's map (never changed): trajectory "
+                            "and localization.json; found with no prior")
+    saved.add_argument("--resume", metavar="SESSION",
+                       help="extend a saved session's map from wherever the log starts in it "
+                            "(multi-session mapping)")
     _config_options(rp, DEFAULT_PRESET)
     rp.set_defaults(func=_replay)
 

@@ -4,8 +4,9 @@ The driver's reader thread hands each whole rotation to the runtime's inbox; the
 ticks at ``rate_hz`` in this thread; a status line shows the scan rate, the pose, the tick
 latency and the error counts once a second. On Ctrl-C (or after ``seconds``) it stops the
 scanner and writes, atomically, the map (PGM + YAML for ROS map_server, and PNG), the
-trajectory (TUM), the pose graph (g2o), a session file (``--resume`` continues it) and
-``summary.json``.
+trajectory (TUM), the pose graph (g2o), a session file (``--resume`` extends it from wherever
+the robot then starts) and ``summary.json``; with ``--localize`` only the trajectory and
+``summary.json`` (the saved map is never changed).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from runtime.config import SlamConfig, override, preset
 from runtime.fixed_rate import SlamRuntime
 from runtime.writers import write_json_atomic
 from scripts.outputs import write_results
+from scripts.tum import write_tum
 
 
 def slam_config_for(model_name: str, rate_hz: float | None = None) -> SlamConfig:
@@ -32,13 +34,18 @@ def slam_config_for(model_name: str, rate_hz: float | None = None) -> SlamConfig
 def run_live(port: str, model: str = "a1", mode: str = "express", out_dir="swarmslam-live",
              rate_hz: float | None = None, seconds: float | None = None, resume=None,
              echo=print, stop: threading.Event | None = None,
-             config: SlamConfig | None = None) -> dict:
+             config: SlamConfig | None = None, localize=None) -> dict:
     """``config``: the whole configuration (default: the model's preset); ``rate_hz``
-    overrides its tick rate."""
+    overrides its tick rate. ``resume``: a session extended from wherever the scanner is in
+    its map (found first); ``localize``: a session to localize in, never changed."""
     out = Path(out_dir)
-    if resume:
-        runtime = SlamRuntime.resume(resume)
-        echo(f"resumed {resume}: {runtime.slam.n_nodes} nodes")
+    changes = {"runtime.rate_hz": rate_hz} if rate_hz is not None else None
+    if localize:
+        runtime = SlamRuntime.localize(localize, changes=changes)
+        echo(f"localizing in {localize}: {runtime.slam.saved.n_nodes} saved nodes (read-only)")
+    elif resume:
+        runtime = SlamRuntime.resume(resume, anywhere=True, changes=changes)
+        echo(f"resumed {resume}: {runtime.slam.n_nodes} nodes; finding where it starts")
     else:
         if config is None:
             config = slam_config_for(model, rate_hz)
@@ -69,8 +76,10 @@ def run_live(port: str, model: str = "a1", mode: str = "express", out_dir="swarm
             r, s = rt.report(), lidar.report()
             rate = (r["scans"] - last_print[1]) / (now - last_print[0])
             pose = rt.pose()
+            graph = (f"saved {r['saved_nodes']:4d} lost {r['lost']:3d}" if rt.localizing else
+                     f"nodes {r['nodes']:4d} loops {r['loops_accepted']:3d}")
             echo(f"{rate:4.1f} scans/s  pose {pose[0]:7.2f} {pose[1]:7.2f} {pose[2]:6.2f}  "
-                 f"nodes {r['nodes']:4d} loops {r['loops_accepted']:3d}  p99 "
+                 f"{graph}  p99 "
                  f"{r['latency_ms_p99']:5.1f} ms  misses {r['deadline_misses']}  stale "
                  f"{r['stale_scans']}  checksum {s['checksum_errors']} resync {s['resyncs']} "
                  f"timeouts {s['timeouts']} reconnects {s['reconnects']}  {rt.status}")
@@ -89,6 +98,11 @@ def run_live(port: str, model: str = "a1", mode: str = "express", out_dir="swarm
 def save_outputs(runtime: SlamRuntime, out: Path, scanner: dict, echo=print) -> dict:
     runtime.drain()
     summary = {"runtime": runtime.report(), "scanner": scanner}
+    if runtime.localizing:  # the saved map is unchanged: only where the robot went
+        write_tum(out / "trajectory.tum", *runtime.trajectory())
+        write_json_atomic(out / "summary.json", summary)
+        echo(f"wrote {out}/: trajectory.tum summary.json")
+        return summary
     if runtime.slam.n_nodes:
         write_results(runtime.slam, out)
         runtime.save(out / "session.npz")

@@ -22,6 +22,7 @@ from scripts.metrics import kummerle
 from scripts.outputs import write_results
 from scripts.progress import Progress
 from scripts.relations import read_relations
+from scripts.tum import write_tum
 
 
 def replay_config(config: SlamConfig | None = None, optimizer: str | None = None,
@@ -49,29 +50,62 @@ def robot_frame_scan(record, scan: PointScan) -> PointScan:
 
 def replay(log_path, relations_path=None, optimizer: str | None = None, odometry=True,
            out_dir=None, limit=None, seed=0, config: SlamConfig | None = None, label="replay",
-           echo=print, schedule: str = "lockstep") -> dict:
+           echo=print, schedule: str = "lockstep", localize=None, resume=None,
+           start: int = 0) -> dict:
     """Every scan of the log through :class:`SlamRuntime`, one tick each, as fast as it goes.
     The default schedule is lockstep (the whole back end every tick, as ``GraphSlam.step``);
-    ``budgeted`` slices it as on a robot. ``optimizer`` overrides ``config``'s."""
+    ``budgeted`` slices it as on a robot. ``optimizer`` overrides ``config``'s.
+
+    ``localize``: a session file to localize in (its map is not changed; the outputs are the
+    trajectory and ``localization.json``). ``resume``: a session to extend from wherever the
+    log starts in it (multi-session mapping). Both take their configuration from the session.
+    ``start``: the first scan replayed."""
     return replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, seed,
-                      config, label, schedule)[0]
+                      config, label, schedule, localize=localize, resume=resume,
+                      start=start)[0]
+
+
+def replay_runtime(scans: int, optimizer=None, seed=0, config: SlamConfig | None = None,
+                   schedule: str = "lockstep", localize=None, resume=None) -> SlamRuntime:
+    """The runtime a replay of ``scans`` scans runs: new, localizing in a session, or
+    extending one from an unknown place."""
+    if localize is None and resume is None:
+        return SlamRuntime(replay_config(config, optimizer, scans, schedule), seed=seed)
+    if config is not None:
+        raise ValueError("a localized or resumed replay takes its configuration from the "
+                         "session; drop --config/--preset")
+    changes = {"runtime.schedule": schedule}
+    if optimizer is not None:
+        changes["matcher.swarm.optimizer"] = optimizer
+    if localize is not None:
+        changes["capacity.max_scans"] = scans
+        return SlamRuntime.localize(localize, changes=changes)
+    runtime = SlamRuntime.resume(resume, anywhere=True, changes=changes)
+    front_end = runtime.slam.front_end
+    if front_end.n_scans + scans > front_end.scan_node.shape[0]:
+        changes["capacity.max_scans"] = front_end.n_scans + scans
+        runtime = SlamRuntime.resume(resume, anywhere=True, changes=changes)
+    return runtime
 
 
 def replay_run(log_path, relations_path=None, optimizer: str | None = None, odometry=True,
                out_dir=None, limit=None, seed=0, config: SlamConfig | None = None,
-               label="replay", schedule: str = "lockstep", before_scan=None):
+               label="replay", schedule: str = "lockstep", before_scan=None, localize=None,
+               resume=None, start: int = 0):
     """:func:`replay`, returning ``(metrics, runtime)``; ``before_scan(k, runtime)`` is called
     before scan ``k`` is processed (benchmarks use it to follow the run)."""
     log = read_carmen(log_path)
     relations = read_relations(relations_path) if relations_path else None
-    lasers = log.lasers[:limit] if limit else log.lasers
-    config = replay_config(config, optimizer, len(lasers), schedule)
-    runtime = SlamRuntime(config, seed=seed)
+    lasers = log.lasers[start : start + limit if limit else None]
+    if not lasers:
+        raise ValueError(f"{log_path}: no laser scans from scan {start}")
+    runtime = replay_runtime(len(lasers), optimizer, seed, config, schedule, localize, resume)
+    config = runtime.config
     slam = runtime.slam
     scan = PointScan(max(len(r.ranges) for r in lasers))
     latencies = np.zeros(len(lasers))
     progress = Progress(len(lasers), label)
-    start = time.perf_counter()
+    start_time = time.perf_counter()
     for k, record in enumerate(lasers):
         robot_frame_scan(record, scan)
         if before_scan is not None:
@@ -79,12 +113,23 @@ def replay_run(log_path, relations_path=None, optimizer: str | None = None, odom
         t0 = time.perf_counter()
         runtime.process(scan, record.odometry if odometry else None, record.timestamp)
         latencies[k] = time.perf_counter() - t0
-        progress.update(note=f"nodes {slam.n_nodes} loops {slam.loops_closed}")
+        progress.update(note=runtime.status if runtime.localizing else
+                        f"nodes {slam.n_nodes} loops {slam.loops_closed}")
     runtime.drain()  # deferred loop searches finish, as on the robot's next ticks
     progress.close()
-    wall = time.perf_counter() - start
-    stamps, poses = slam.trajectory()
+    wall = time.perf_counter() - start_time
     data_seconds = float(lasers[-1].timestamp - lasers[0].timestamp)
+    timing = {
+        "wall_seconds": wall,
+        "data_seconds": data_seconds,
+        "real_time_factor": data_seconds / wall if wall > 0 else float("inf"),
+        "latency_ms_median": float(1e3 * np.median(latencies)),
+        "latency_ms_p99": float(1e3 * np.percentile(latencies, 99)),
+    }
+    if runtime.localizing:
+        return localization_results(runtime, log_path, localize, lasers, odometry, timing,
+                                    relations, out_dir), runtime
+    stamps, poses = slam.trajectory()
     metrics = {
         "log": str(log_path),
         "optimizer": config.matcher.swarm.optimizer,
@@ -97,11 +142,7 @@ def replay_run(log_path, relations_path=None, optimizer: str | None = None, odom
         "loops_rejected_consistency": slam.back_end.loops.rejected_consistency,
         "matches_recovered": slam.front_end.lost_matches,
         "matches_degenerate": slam.front_end.degenerate_matches,
-        "wall_seconds": wall,
-        "data_seconds": data_seconds,
-        "real_time_factor": data_seconds / wall if wall > 0 else float("inf"),
-        "latency_ms_median": float(1e3 * np.median(latencies)),
-        "latency_ms_p99": float(1e3 * np.percentile(latencies, 99)),
+        **timing,
         "status": runtime.status,
         "runtime": runtime.report(),
     }
@@ -112,3 +153,20 @@ def replay_run(log_path, relations_path=None, optimizer: str | None = None, odom
         runtime.save(Path(out_dir) / "session.npz")  # map once, localize or resume later
         write_json_atomic(Path(out_dir) / "metrics.json", metrics)
     return metrics, runtime
+
+
+def localization_results(runtime: SlamRuntime, log_path, session_path, lasers, odometry,
+                         timing: dict, relations, out_dir) -> dict:
+    """A localization replay's metrics, and its outputs: the trajectory (TUM) and
+    ``localization.json``."""
+    stamps, poses = runtime.trajectory()
+    metrics = {"log": str(log_path), "session": str(session_path), "odometry": bool(odometry),
+               "scans": len(lasers), "scans_with_pose": len(stamps), **timing,
+               "status": runtime.status, "runtime": runtime.report(),
+               "saved_map_sha256": runtime.slam.saved.digest()}
+    if relations is not None:
+        metrics.update(kummerle(stamps, poses, relations))
+    if out_dir is not None:
+        write_tum(Path(out_dir) / "trajectory.tum", stamps, poses)
+        write_json_atomic(Path(out_dir) / "localization.json", metrics)
+    return metrics

@@ -1,0 +1,220 @@
+"""Localization mode: find, confirm and track the robot's pose in a saved map that never
+changes (docs/method.md §9).
+
+    localizer = Localizer(config, saved)              # saved: a runtime.map_tracking.SavedMap
+    result = localizer.step(scan, odometry, stamp)    # a StepResult; pose NaN while unknown
+
+1. searching — no pose (no prior was given, or it was lost): the global search
+   (:mod:`runtime.relocalization`, §8) places the scan, or lists the distinct poses that
+   explain it about equally well;
+2. confirming — every candidate is tracked (:class:`~runtime.map_tracking.MapTracker`) over
+   the next ``confirm_seconds`` of scans; a candidate whose scans stop fitting is dropped, and
+   after the window so is one whose mean fit is below ``confirm_ratio`` of the best. One left
+   → tracking; none → searching; several → they stay candidates until the scans tell them
+   apart (a corridor);
+3. tracking — Alg. 5 against the saved node scans nearest the pose; ``lost_scans`` poor
+   matches in a row → searching.
+
+The same :class:`~runtime.step_result.StepResult` as mapping comes back, so
+:class:`~runtime.fixed_rate.SlamRuntime` runs either at its fixed rate. The saved map's arrays
+are read-only: localization cannot change them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from runtime.config import SlamConfig
+from runtime.map_tracking import MapTracker, SavedMap
+from runtime.pose import between
+from runtime.relocalization import Located, Relocalizer
+from runtime.scan import PointScan
+from runtime.scan_matcher import ScanMatcher
+from runtime.step_result import StepResult
+
+SEARCHING, CONFIRMING, TRACKING = "searching", "confirming", "tracking"
+
+
+class Localizer:
+    """Localization in a :class:`SavedMap` (see module doc). ``initial_pose``: a prior (then
+    tracking starts at once); None: the first scans are searched for."""
+
+    def __init__(self, config: SlamConfig, saved: SavedMap, seed: int = 0, initial_pose=None):
+        self.config, self.saved = config, saved
+        self.relocalizer = Relocalizer(config, saved.poses, saved.nodes, saved.n_nodes, seed)
+        self.matcher = ScanMatcher(config.matcher, seed=seed + 1)
+        self.trackers = [MapTracker(saved, self.matcher, config)
+                         for _ in range(config.relocalization.max_hypotheses)]
+        self.n_candidates = 0  # trackers[:n_candidates] follow live hypotheses
+        self.phase = SEARCHING
+        self.confirm_until = 0.0
+        n = config.capacity.max_scans
+        self.stamps = np.zeros(n)
+        self.poses = np.full((n, 3), np.nan)  # NaN: no committed pose at that scan
+        self.n_scans = 0
+        self.last_odometry = np.zeros(3)
+        self.have_odometry = False
+        self.counts = {"searches": 0, "ambiguous_answers": 0, "empty_answers": 0,
+                       "committed": 0, "lost": 0, "poor_matches": 0, "tracked_scans": 0}
+        self.fit_sum = 0.0  # over tracked scans
+        if initial_pose is not None:
+            self._commit_pose(np.asarray(initial_pose, np.float64))
+
+    def reset(self, initial_pose=None) -> None:
+        """Forget the pose (and odometry): the next scan is searched for, or tracked from
+        ``initial_pose``. The trajectory recorded so far stays."""
+        self.phase, self.n_candidates = SEARCHING, 0
+        self.have_odometry = False
+        if initial_pose is not None:
+            self._commit_pose(np.asarray(initial_pose, np.float64))
+
+    def warm_up(self) -> None:
+        """Run the search and the tracking kernels once on the saved map (a robot calls this
+        before its first tick); the localizer's own state is left as it was."""
+        scan = self.saved.nodes.load(0, PointScan(self.saved.nodes.max_points))
+        self.relocalizer.relocalize(scan)
+        scratch = MapTracker(self.saved, self.matcher, self.config)
+        scratch.start(self.saved.poses[0])
+        scratch.follow(scan, np.zeros(3))
+
+    # ------------------------------------------------------------------ one scan
+    def step(self, scan: PointScan, odometry=None, stamp: float = 0.0, clock=None,
+             budget_end: float | None = None) -> StepResult:
+        """One scan in the current phase (see module doc); ``clock`` times the tracking."""
+        start = clock() if clock is not None else 0.0
+        motion = self._odometry_step(odometry)
+        error = 0.0
+        if self.phase == TRACKING:
+            error = self._track(scan, motion)
+        elif self.phase == CONFIRMING:
+            self._confirm(scan, motion, stamp)
+        if self.phase == SEARCHING:
+            self._search(scan, stamp)
+        took = clock() - start if clock is not None else 0.0
+        self._record(stamp)
+        return StepResult(self.pose(), False, False, error, took)
+
+    def _track(self, scan, motion) -> float:
+        tracker = self.trackers[0]
+        fit = tracker.follow(scan, motion)
+        self.counts["tracked_scans"] += 1
+        self.fit_sum += fit
+        if tracker.poor:
+            self.counts["poor_matches"] += 1
+        if tracker.poor >= self.config.localization.lost_scans:
+            self.counts["lost"] += 1
+            self.phase, self.n_candidates = SEARCHING, 0
+        return tracker.error
+
+    def _search(self, scan, stamp) -> None:
+        """The global search (§8); its candidates are confirmed over the next scans."""
+        self.counts["searches"] += 1
+        answer = self.relocalizer.relocalize(scan)
+        poses = (answer.pose,) if isinstance(answer, Located) else answer.poses
+        if not isinstance(answer, Located):
+            self.counts["ambiguous_answers" if poses else "empty_answers"] += 1
+        if not poses:
+            return
+        for tracker, pose in zip(self.trackers, poses):
+            tracker.start(pose)
+        self.n_candidates = min(len(poses), len(self.trackers))
+        self.phase = CONFIRMING
+        self.confirm_until = stamp + self.config.relocalization.confirm_seconds
+        if self.config.relocalization.confirm_seconds <= 0 and self.n_candidates == 1:
+            self._commit(0)
+
+    def _confirm(self, scan, motion, stamp) -> None:
+        lc = self.config.localization
+        kept = 0
+        for k in range(self.n_candidates):  # a candidate that lost track is dropped
+            tracker = self.trackers[k]
+            tracker.follow(scan, motion)
+            if tracker.poor < lc.lost_scans:
+                self.trackers[kept], self.trackers[k] = tracker, self.trackers[kept]
+                kept += 1
+        self.n_candidates = kept
+        if kept == 0:
+            self.phase = SEARCHING
+            return
+        if stamp < self.confirm_until:
+            return
+        best = max(t.mean_fit for t in self.trackers[:kept])
+        kept = 0
+        for k in range(self.n_candidates):
+            if self.trackers[k].mean_fit >= lc.confirm_ratio * best:
+                self.trackers[kept], self.trackers[k] = self.trackers[k], self.trackers[kept]
+                kept += 1
+        self.n_candidates = kept
+        if kept == 1:
+            self._commit(0)
+
+    def _commit(self, k: int) -> None:
+        self.trackers[0], self.trackers[k] = self.trackers[k], self.trackers[0]
+        self.n_candidates = 1
+        self.phase = TRACKING
+        self.counts["committed"] += 1
+
+    def _commit_pose(self, pose) -> None:
+        self.trackers[0].start(pose)
+        self._commit(0)
+
+    def _odometry_step(self, odometry):
+        """Odometry's motion since the last scan, or None (the trackers repeat their last)."""
+        if odometry is None:
+            return None
+        odometry = np.asarray(odometry, dtype=np.float64)
+        step = between(odometry, self.last_odometry) if self.have_odometry else np.zeros(3)
+        self.last_odometry[:] = odometry
+        self.have_odometry = True
+        return step
+
+    def _record(self, stamp) -> None:
+        k = self.n_scans
+        if k >= len(self.stamps):
+            return
+        self.stamps[k] = stamp
+        if self.phase == TRACKING:
+            self.poses[k] = self.trackers[0].pose
+        self.n_scans += 1
+
+    # ------------------------------------------------------------------ what consumers read
+    def pose(self) -> np.ndarray:
+        """The committed pose in the map frame; NaN while searching or confirming."""
+        if self.phase != TRACKING:
+            return np.full(3, np.nan)
+        return self.trackers[0].pose.copy()
+
+    def candidates(self) -> np.ndarray:
+        """The poses still in question (while confirming), or the committed one."""
+        return np.array([t.pose for t in self.trackers[: self.n_candidates]]).reshape(-1, 3)
+
+    def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
+        """Timestamps and poses of the scans with a committed pose."""
+        n = self.n_scans
+        known = ~np.isnan(self.poses[:n, 0])
+        return self.stamps[:n][known].copy(), self.poses[:n][known].copy()
+
+    def set_evaluation_share(self, share: float) -> None:
+        """The runtime's swarm budget for this tick, shared by the candidates followed."""
+        self.matcher.set_evaluation_share(share / max(self.n_candidates, 1))
+
+    def run_back_end(self, clock=None, budget_end=None) -> bool:
+        return False  # the saved graph is never optimised again
+
+    def drain(self, clock=None) -> int:
+        return 0
+
+    @property
+    def status(self) -> str:
+        if self.phase == TRACKING:
+            return "ok"
+        if self.phase == CONFIRMING:
+            return f"localizing: confirming {self.n_candidates} candidate pose(s)"
+        return "localizing: searching the map"
+
+    def report(self) -> dict:
+        tracked = self.counts["tracked_scans"]
+        return {"mode": "localization", "phase": self.phase, "saved_nodes": self.saved.n_nodes,
+                **self.counts, "mean_fit": self.fit_sum / tracked if tracked else 0.0,
+                "scans_without_pose": int(np.isnan(self.poses[: self.n_scans, 0]).sum()),
+                "status": self.status}

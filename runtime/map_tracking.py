@@ -1,0 +1,155 @@
+"""One pose followed through a saved map: Alg. 5 against the saved node scans nearest it
+(docs/method.md §9).
+
+    tracker = MapTracker(saved, matcher, config)
+    tracker.start(pose)
+    fit = tracker.follow(scan, step)     # share of the scan's points on the saved surfaces
+
+The reference is the ``localization.submap_nodes`` saved node scans nearest the pose (heading
+counted as distance, since a scan sees what its node faced), placed in the nearest one's
+frame — the anchor. It is rebuilt only when another node becomes nearer than the anchor by
+``reanchor_distance``, so, as in the front end, most scans match a reference built earlier.
+A match that fits poorly is replaced by the prediction (the scan may be blocked by people or
+furniture the map does not have); ``lost_scans`` such matches in a row mean the pose is lost.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+
+import numpy as np
+from numba import njit
+
+from runtime.config import SlamConfig
+from runtime.node_scans import NodeScans
+from runtime.pose import between, compose
+from runtime.scan import PointScan
+from runtime.scan_matcher import ScanMatcher
+
+
+@njit(cache=True)
+def nearest_nodes(poses, n, x, y, theta, heading_weight, out, out_d2):
+    """The ``len(out)`` nodes of ``poses[:n]`` nearest ``(x, y, theta)`` (heading difference
+    × ``heading_weight`` counted as distance), nearest first, into ``out`` / ``out_d2``.
+    Returns how many."""
+    k = 0
+    size = out.shape[0]
+    for m in range(n):
+        d = (theta - poses[m, 2] + math.pi) % (2.0 * math.pi) - math.pi
+        d2 = (poses[m, 0] - x) ** 2 + (poses[m, 1] - y) ** 2 + (heading_weight * d) ** 2
+        if k == size and d2 >= out_d2[k - 1]:
+            continue
+        if k < size:
+            k += 1
+        q = k - 1
+        while q > 0 and out_d2[q - 1] > d2:
+            out[q], out_d2[q] = out[q - 1], out_d2[q - 1]
+            q -= 1
+        out[q], out_d2[q] = m, d2
+    return k
+
+
+class SavedMap:
+    """A saved session's node poses and node scans, read-only (the map localization uses)."""
+
+    def __init__(self, poses, nodes: NodeScans, n_nodes: int):
+        if n_nodes < 1:
+            raise ValueError("the saved map has no nodes")
+        self.poses = np.array(poses[:n_nodes], dtype=np.float64)
+        self.nodes = NodeScans(n_nodes, nodes.max_points)
+        self.nodes.points[:] = nodes.points[:n_nodes]
+        self.nodes.counts[:] = nodes.counts[:n_nodes]
+        self.nodes.cov[:] = nodes.cov[:n_nodes]
+        self.n_nodes = n_nodes
+        for a in (self.poses, self.nodes.points, self.nodes.counts, self.nodes.cov):
+            a.flags.writeable = False  # a write anywhere is an error, not a changed map
+
+    @classmethod
+    def from_state(cls, slam_state: dict, max_points: int) -> SavedMap:
+        """From a :meth:`runtime.slam.GraphSlam.state` (a session's ``slam`` entry)."""
+        poses = np.asarray(slam_state["graph"]["poses"], dtype=np.float64)
+        n = len(poses)
+        if poses.ndim != 2 or poses.shape[1] != 3:
+            raise ValueError(f"node poses have shape {poses.shape}, expected (n, 3)")
+        nodes = NodeScans(max(n, 1), max_points)
+        nodes.restore(slam_state["nodes"])
+        if len(slam_state["nodes"]["counts"]) != n:
+            raise ValueError("node scans do not match the graph's nodes")
+        return cls(poses, nodes, n)
+
+    def digest(self) -> str:
+        """SHA-256 of the poses and scans (equal before and after a run: nothing changed)."""
+        h = hashlib.sha256()
+        for a in (self.poses, self.nodes.points, self.nodes.counts):
+            h.update(a.tobytes())
+        return h.hexdigest()
+
+
+class MapTracker:
+    """One pose hypothesis tracked in a :class:`SavedMap` (see module doc)."""
+
+    def __init__(self, saved: SavedMap, matcher: ScanMatcher, config: SlamConfig):
+        self.saved, self.matcher, self.config = saved, matcher, config
+        k = config.localization.submap_nodes
+        self.reference = matcher.new_reference()
+        self._submap = PointScan(saved.nodes.max_points * k)
+        self._near = np.zeros(min(k, saved.n_nodes), np.int64)
+        self._near_d2 = np.zeros(len(self._near))
+        self.pose = np.zeros(3)  # in the map frame
+        self.motion = np.zeros(3)  # the last scan-to-scan motion, for a scan-only prediction
+        self.anchor = -1
+        self.poor = 0  # poor matches in a row
+        self.fit_sum, self.fits = 0.0, 0  # since start()
+        self.error = 0.0  # λ of the last match
+
+    def start(self, pose) -> None:
+        self.pose[:] = pose
+        self.motion[:] = 0.0
+        self.anchor = -1
+        self.poor, self.fit_sum, self.fits = 0, 0.0, 0
+
+    @property
+    def mean_fit(self) -> float:
+        return self.fit_sum / self.fits if self.fits else 0.0
+
+    def follow(self, scan: PointScan, step=None) -> float:
+        """Alg. 5 for ``scan`` from the pose moved by ``step`` (odometry's motion since the last
+        scan; None: the last motion again). Returns the match's fit (inlier share)."""
+        c = self.config.front_end
+        predicted = compose(self.pose, self.motion if step is None else step)
+        self._reanchor(predicted)
+        origin = self.saved.poses[self.anchor]
+        guess = between(predicted, origin)
+        match = self.matcher.align_scans(scan, self.reference, guess)
+        fit = self.matcher.inlier_fraction(scan, self.reference, match.pose,
+                                           c.track_inlier_distance, c.track_inlier_slope)
+        if fit < c.min_track_inliers:
+            self.poor += 1
+            pose = predicted  # the prediction stands in, as in the front end
+        else:
+            self.poor = 0
+            pose = compose(origin, match.pose)
+        self.motion[:] = between(pose, self.pose)
+        self.pose[:] = pose
+        self.fit_sum += fit
+        self.fits += 1
+        self.error = match.error
+        return fit
+
+    def _reanchor(self, pose) -> None:
+        lc = self.config.localization
+        n = nearest_nodes(self.saved.poses, self.saved.n_nodes, pose[0], pose[1], pose[2],
+                          lc.heading_weight, self._near, self._near_d2)
+        if self.anchor >= 0:
+            a = self.saved.poses[self.anchor]
+            d = (pose[2] - a[2] + math.pi) % (2 * math.pi) - math.pi
+            held = math.sqrt((a[0] - pose[0]) ** 2 + (a[1] - pose[1]) ** 2
+                             + (lc.heading_weight * d) ** 2)
+            if math.sqrt(self._near_d2[0]) + lc.reanchor_distance >= held:
+                return
+        self.anchor = int(self._near[0])
+        self._near[:n].sort()  # oldest first, so surfaces join within each scan
+        submap = self.saved.nodes.place(self.saved.poses, self._near[:n], self.anchor,
+                                        self._submap)
+        self.matcher.build_reference(submap, self.reference)
