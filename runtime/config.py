@@ -349,9 +349,18 @@ class LocalizationConfig(Section):
         ge=0)
     lost_scans: int = _setting(5, "poor matches in a row that mean the pose is lost (the global "
                                "search follows)", ge=1)
-    confirm_ratio: float = _setting(
-        0.97, "after confirm_seconds, a candidate whose mean fit is below this share of the "
-        "best one's is dropped", gt=0, le=1)
+    merge_distance: float = _setting(
+        0.2, "m: candidates that tracked this near each other are one (the worse is dropped)",
+        ge=0)
+    merge_angle: float = _setting(0.05, "rad: and turned at most this from each other", ge=0)
+    confirm_misses: float = _setting(
+        2.0, "after confirm_seconds, a candidate whose share of scan points off the saved "
+        "surfaces exceeds this many times the best one's (plus confirm_miss_floor) is dropped",
+        ge=1)
+    confirm_miss_floor: float = _setting(
+        0.003, "share of points off the surfaces any candidate may have beyond the best one's "
+        "multiple (a nearly perfect best one then does not drop the other for a point or two)",
+        ge=0)
 
 
 @dataclass(frozen=True)

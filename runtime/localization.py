@@ -8,8 +8,9 @@ changes (docs/method.md §9).
    (:mod:`runtime.relocalization`, §8) places the scan, or lists the distinct poses that
    explain it about equally well;
 2. confirming — every candidate is tracked (:class:`~runtime.map_tracking.MapTracker`) over
-   the next ``confirm_seconds`` of scans; a candidate whose scans stop fitting is dropped, and
-   after the window so is one whose mean fit is below ``confirm_ratio`` of the best. One left
+   the next ``confirm_seconds`` of scans; a candidate whose scans stop fitting is dropped, two
+   that track into one place merge, and after the window a candidate missing the saved
+   surfaces with many more points than the best one (``confirm_misses``) is dropped. One left
    → tracking; none → searching; several → they stay candidates until the scans tell them
    apart (a corridor);
 3. tracking — Alg. 5 against the saved node scans nearest the pose; ``lost_scans`` poor
@@ -25,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from runtime.config import SlamConfig
+from runtime.front_end import TRAJECTORY_STATUS
 from runtime.map_tracking import MapTracker, SavedMap
 from runtime.pose import between
 from runtime.relocalization import Located, Relocalizer
@@ -57,6 +59,7 @@ class Localizer:
         self.counts = {"searches": 0, "ambiguous_answers": 0, "empty_answers": 0,
                        "committed": 0, "lost": 0, "poor_matches": 0, "tracked_scans": 0}
         self.fit_sum = 0.0  # over tracked scans
+        self.trajectory_full = False
         if initial_pose is not None:
             self._commit_pose(np.asarray(initial_pose, np.float64))
 
@@ -125,28 +128,46 @@ class Localizer:
 
     def _confirm(self, scan, motion, stamp) -> None:
         lc = self.config.localization
-        kept = 0
-        for k in range(self.n_candidates):  # a candidate that lost track is dropped
-            tracker = self.trackers[k]
-            tracker.follow(scan, motion)
-            if tracker.poor < lc.lost_scans:
-                self.trackers[kept], self.trackers[k] = tracker, self.trackers[kept]
-                kept += 1
-        self.n_candidates = kept
-        if kept == 0:
+        for k in range(self.n_candidates):
+            self.trackers[k].follow(scan, motion)
+        # a candidate that lost track is dropped; two that tracked into one place are one
+        dropped = self._duplicates()
+        self._keep(lambda t: t.poor < lc.lost_scans and id(t) not in dropped)
+        if self.n_candidates == 0:
             self.phase = SEARCHING
             return
         if stamp < self.confirm_until:
             return
-        best = max(t.mean_fit for t in self.trackers[:kept])
+        # the fit saturates near 1 in a well-mapped place: the share of points off the
+        # surfaces tells a wrong place (a rival seen from afar) from the right one
+        best = 1.0 - max(t.mean_fit for t in self.trackers[: self.n_candidates])
+        worst = lc.confirm_misses * best + lc.confirm_miss_floor
+        self._keep(lambda t: 1.0 - t.mean_fit <= worst)
+        if self.n_candidates == 1:
+            self._commit(0)
+
+    def _keep(self, test) -> None:
+        """Keep the candidates passing ``test`` (in order) at the front of the trackers."""
         kept = 0
         for k in range(self.n_candidates):
-            if self.trackers[k].mean_fit >= lc.confirm_ratio * best:
-                self.trackers[kept], self.trackers[k] = self.trackers[k], self.trackers[kept]
+            tracker = self.trackers[k]
+            if test(tracker):
+                self.trackers[kept], self.trackers[k] = tracker, self.trackers[kept]
                 kept += 1
         self.n_candidates = kept
-        if kept == 1:
-            self._commit(0)
+
+    def _duplicates(self) -> set:
+        """Candidates that tracked into the place of a better fitting one (within
+        merge_distance and merge_angle): ids to drop."""
+        lc = self.config.localization
+        trackers, dropped = self.trackers[: self.n_candidates], set()
+        for i, a in enumerate(trackers):
+            for b in trackers[i + 1 :]:
+                d = between(a.pose, b.pose)
+                if d[0] ** 2 + d[1] ** 2 <= lc.merge_distance ** 2 and \
+                        abs(d[2]) <= lc.merge_angle:
+                    dropped.add(id(b) if a.mean_fit >= b.mean_fit else id(a))
+        return dropped
 
     def _commit(self, k: int) -> None:
         self.trackers[0], self.trackers[k] = self.trackers[k], self.trackers[0]
@@ -171,6 +192,7 @@ class Localizer:
     def _record(self, stamp) -> None:
         k = self.n_scans
         if k >= len(self.stamps):
+            self.trajectory_full = True
             return
         self.stamps[k] = stamp
         if self.phase == TRACKING:
@@ -206,11 +228,12 @@ class Localizer:
 
     @property
     def status(self) -> str:
-        if self.phase == TRACKING:
-            return "ok"
-        if self.phase == CONFIRMING:
-            return f"localizing: confirming {self.n_candidates} candidate pose(s)"
-        return "localizing: searching the map"
+        said = {TRACKING: "ok", SEARCHING: "localizing: searching the map",
+                CONFIRMING: f"localizing: confirming {self.n_candidates} candidate pose(s)"}
+        said = said[self.phase]
+        if self.trajectory_full:
+            said = TRAJECTORY_STATUS if said == "ok" else f"{said}; {TRAJECTORY_STATUS}"
+        return said
 
     def report(self) -> dict:
         tracked = self.counts["tracked_scans"]

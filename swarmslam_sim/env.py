@@ -11,12 +11,14 @@ from gymnasium import spaces
 
 from runtime.config import OPTIMIZERS, SlamConfig, override, simulated
 from runtime.fixed_rate import SlamRuntime
+from runtime.localization import TRACKING
 from runtime.pose import between_nb, compose_nb, wrap_angle
 from runtime.scan import PointScan, ranges_to_points
 from swarmslam_sim.catalog import get_world
 from swarmslam_sim.lidar import Lidar, lidar_config
-from swarmslam_sim.mapping import crop_probability, world_grid
+from swarmslam_sim.mapping import crop_probability, wall_clearance, world_grid
 from swarmslam_sim.physics import SUBSTEP, Robot, build_space
+from swarmslam_sim.prior_map import session_map, surveyed_map
 from swarmslam_sim.render import Renderer
 
 
@@ -51,7 +53,12 @@ class SwarmSlamEnv(gym.Env):
     (contact begins).
 
     ## Starting State
-    The world's start position with a heading drawn uniformly from [-π, π); the map is empty.
+    The world's start position with a heading drawn uniformly from [-π, π) (or
+    ``reset(options={"start": (x, y, θ)})``); the map is empty. With ``prior_map`` the SLAM
+    localizes in that map instead (it is drawn as the map, and never changed); with
+    ``kidnapped=True`` as well, the robot starts at a random reachable pose the estimator is not
+    told: it searches the map for it, and ``info["localized"]`` stays False (the observed pose
+    holds the last estimate, at first the world's start) until it has confirmed one.
 
     ## Episode End
     Terminated when ``coverage_goal`` of the mappable area is observed (``None``: never), or on the first
@@ -61,7 +68,8 @@ class SwarmSlamEnv(gym.Env):
     ## Info
     ``true_pose``, ``estimated_pose``, ``pose_error`` (m, and ``heading_error`` rad),
     ``coverage`` (0–1), ``collisions`` (count this episode), ``in_contact``, ``odometry`` (the
-    wheel-odometry pose), ``slam_nodes``, ``loop_closures`` and ``slam_status``; with
+    wheel-odometry pose), ``slam_nodes``, ``loop_closures``, ``slam_status`` and ``localized``
+    (False while localization mode searches for the pose); with
     ``timing_in_info=True`` also ``slam_ms``, this step's SLAM wall time. (Off by default: a
     wall time differs run to run, and Gymnasium's ``check_env`` requires the same info for the
     same seed; ``env.unwrapped.slam_ms`` always holds it.)
@@ -71,7 +79,9 @@ class SwarmSlamEnv(gym.Env):
     seeded by ``world_seed``), a ``.world`` path or a :class:`World`. ``lidar``: a preset
     (``rplidar-a1``, ``rplidar-a2``, ``lms200``), a dict of ``LidarConfig`` fields, or a config.
     ``optimizer``: ``abc``, ``pso`` or ``fa``. ``slam=False`` reports the true pose and maps
-    from it (a fast baseline). ``odometry_noise``: std of the wheel odometry per metre
+    from it (a fast baseline). ``prior_map``: ``"world"`` (surveyed from the world: exact scans
+    every metre) or a session file — localization mode (docs/method.md §9); ``kidnapped``: see
+    Starting State. ``odometry_noise``: std of the wheel odometry per metre
     travelled (x and y), per radian turned and per metre travelled (heading).
     """
 
@@ -84,7 +94,7 @@ class SwarmSlamEnv(gym.Env):
                  map_resolution: float = 0.1, crop: int = 64, coverage_goal: float | None = 0.9,
                  terminate_on_collision: bool = False, reward_per_m2: float = 1.0,
                  collision_penalty: float = 1.0, slam_config: SlamConfig | None = None,
-                 timing_in_info: bool = False):
+                 timing_in_info: bool = False, prior_map=None, kidnapped: bool = False):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
         if optimizer not in OPTIMIZERS:
@@ -113,6 +123,14 @@ class SwarmSlamEnv(gym.Env):
         config = slam_config or simulated(beams=lc.beams, min_range=lc.min_range,
                                           max_range=lc.max_range).with_optimizer(optimizer)
         self.slam_config = override(config, {"runtime.schedule": "lockstep"})
+        if kidnapped and prior_map is None:
+            raise ValueError("kidnapped=True needs a prior_map to be found in")
+        if prior_map is not None and not self.use_slam:
+            raise ValueError("prior_map needs slam=True (it is the SLAM's localization mode)")
+        self.kidnapped = bool(kidnapped)
+        self.prior = (None if prior_map is None else
+                      surveyed_map(self.world, self.lidar) if prior_map == "world" else
+                      session_map(prior_map))
         self.map = world_grid(self.world, map_resolution)
         self.mappable_cells = int(self.map.region.sum())
         self.cell_area = map_resolution**2
@@ -138,15 +156,26 @@ class SwarmSlamEnv(gym.Env):
         rng = self.np_random
         start = np.array(self.world.start, dtype=np.float64)
         start[2] = rng.uniform(-math.pi, math.pi)
+        if self.kidnapped:
+            start = self._random_start(rng)
+        if options and options.get("start") is not None:
+            start = np.array(options["start"], dtype=np.float64).reshape(3)
         self.space = build_space(self.world)
         self.robot = Robot(self.space, start, self.robot_radius)
+        told = None if self.kidnapped else start
         self.runtime = (SlamRuntime(self.slam_config, seed=int(rng.integers(2**31)),
-                                    initial_pose=start) if self.use_slam else None)
+                                    initial_pose=told, saved_map=self.prior)
+                        if self.use_slam else None)
         self.slam = None if self.runtime is None else self.runtime.slam
         self.true_pose = start.copy()
         self.odometry = start.copy()
-        self.estimated_pose = start.copy()
+        self.estimated_pose = start.copy() if told is not None else \
+            np.array(self.world.start, dtype=np.float64)
         self.map.logodds[:] = 0.0
+        if self.prior is not None:  # the prior map is the map
+            for k in range(self.prior.n_nodes):
+                self.map.integrate(self.prior.poses[k], self.prior.nodes.scan_points(k),
+                                   self.lidar.config.max_range)
         self._mapped_poses = np.zeros((self.slam_config.capacity.max_nodes, 3))  # node poses the map shows
         self._seen_revision = 0  # the SLAM's revision when the map was last checked
         self.known_cells = 0
@@ -212,20 +241,26 @@ class SwarmSlamEnv(gym.Env):
             t0 = time.perf_counter()
             result = self.runtime.process(scan, self.odometry, self.steps * self.dt)
             self.slam_ms = 1e3 * (time.perf_counter() - t0)
-            self.estimated_pose = result.pose
-            if result.node_added:
-                self._mapped_poses[self.slam.keyframe] = self.slam.node_pose(self.slam.keyframe)
-            if self.slam.revision != self._seen_revision:  # a loop closure moved the nodes
-                self._seen_revision = self.slam.revision
-                if self._graph_moved():
-                    self._rebuild_map()
+            if not np.isnan(result.pose[0]):  # NaN: localization has no pose yet
+                self.estimated_pose = result.pose
+            if not self.runtime.localizing:  # a prior map never changes
+                self._follow_graph(result.node_added)
         elif self.slam is None:
             self.estimated_pose = self.true_pose.copy()
         self.true_path.append(self.true_pose.copy())
         self.estimated_path.append(self.estimated_pose.copy())
-        new_cells = self.map.integrate(self.estimated_pose, scan.points, lc.max_range) if scan.count else 0
+        new_cells = (self.map.integrate(self.estimated_pose, scan.points, lc.max_range)
+                     if scan.count and self.localized else 0)
         self.known_cells += new_cells
         return new_cells
+
+    def _follow_graph(self, node_added: bool) -> None:
+        if node_added:
+            self._mapped_poses[self.slam.keyframe] = self.slam.node_pose(self.slam.keyframe)
+        if self.slam.revision != self._seen_revision:  # a loop closure moved the nodes
+            self._seen_revision = self.slam.revision
+            if self._graph_moved():
+                self._rebuild_map()
 
     def _graph_moved(self) -> bool:
         """Did the optimisation move a node by more than half a map cell (at the LiDAR's
@@ -255,6 +290,23 @@ class SwarmSlamEnv(gym.Env):
                 motion[2] + n[2] * (a_turn * turn + a_drift * dist))
 
     @property
+    def localized(self) -> bool:
+        """The SLAM has a pose (always, but in localization mode before it confirmed one)."""
+        return self.runtime is None or not self.runtime.localizing or \
+            self.runtime.slam.phase == TRACKING
+
+    def _random_start(self, rng) -> np.ndarray:
+        """A reachable pose at least two robot radii from any wall, any heading."""
+        ok = (self.map.region != 0) & (wall_clearance(self.world, self.map)
+                                       >= 2 * self.robot_radius)
+        rows, cols = np.nonzero(ok)
+        k = int(rng.integers(len(rows)))
+        res = self.map.resolution
+        return np.array([self.map.origin[0] + (cols[k] + 0.5) * res,
+                         self.map.origin[1] + (rows[k] + 0.5) * res,
+                         rng.uniform(-math.pi, math.pi)])
+
+    @property
     def coverage(self) -> float:
         return self.known_cells / self.mappable_cells
 
@@ -282,8 +334,9 @@ class SwarmSlamEnv(gym.Env):
             "collisions": self.collisions,
             "in_contact": self.in_contact,
             "odometry": self.odometry.copy(),
-            "slam_nodes": 0 if slam is None else slam.n_nodes,
-            "loop_closures": 0 if slam is None else slam.loops_closed,
+            "slam_nodes": 0 if slam is None or self.runtime.localizing else slam.n_nodes,
+            "loop_closures": 0 if slam is None or self.runtime.localizing else slam.loops_closed,
+            "localized": self.localized,
             "slam_status": "off" if slam is None else self.runtime.status,
         }
         if self.timing_in_info:

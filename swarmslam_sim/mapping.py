@@ -69,3 +69,19 @@ def crop_probability(logodds, origin_x, origin_y, res, x, y, out):
                 out[i, j] = 1.0 - 1.0 / (1.0 + math.exp(logodds[gy, gx]))
             else:
                 out[i, j] = 0.5
+
+
+def map_error(world: World, poses, nodes, n_nodes: int, max_range: float = np.inf) -> float:
+    """Mean distance (m) from the SLAM map's points — every node scan within ``max_range``,
+    placed at its node's optimised pose — to the nearest wall of the world."""
+    placed = []
+    for k in range(n_nodes):
+        pts = nodes.scan_points(k)
+        pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= max_range]
+        c, s = math.cos(poses[k, 2]), math.sin(poses[k, 2])
+        placed.append(pts @ np.array([[c, s], [-s, c]]) + poses[k, :2])
+    points = np.vstack(placed)
+    best = np.full(len(points), np.inf)
+    for seg in world.segments:
+        np.minimum(best, point_segment_distance(points, seg), out=best)
+    return float(best.mean())

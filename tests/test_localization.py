@@ -1,0 +1,247 @@
+"""Localization mode (runtime.localization, runtime.map_tracking) and multi-session mapping:
+tracking in a saved map that stays byte for byte the same, a robot found with no prior and
+again after it is carried away, twin rooms left unresolved rather than answered wrongly, a
+corrupt session refused, and two sessions joined into one map as good as one run's."""
+
+import hashlib
+import math
+import tracemalloc
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import swarmslam_sim  # noqa: F401  (registers SwarmSlam-v0)
+from runtime.config import SlamConfig, override
+from runtime.fixed_rate import SlamRuntime
+from runtime.localization import CONFIRMING, TRACKING, Localizer
+from runtime.map_tracking import SavedMap, nearest_nodes
+from runtime.pose import between, compose
+from runtime.scan import PointScan
+from runtime.session import SessionError
+from runtime.warm_up import LoopDrive, loop_path, room_world, scan_at
+from swarmslam_sim.lidar import Lidar, lidar_config
+from swarmslam_sim.mapping import map_error
+from swarmslam_sim.world import World
+from test_relocalization import ANGLES, map_from
+
+LOCKSTEP = {"runtime.schedule": "lockstep"}
+
+
+def sha256(path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def feed(runtime, drive, scans, scan, stamp0=0.0):
+    """``scans`` more scans of ``drive`` through ``runtime``: (true poses, results)."""
+    truths, results = [], []
+    for k in range(scans):
+        truth, odometry, ranges = drive.next()
+        scan.set_ranges(ranges, drive.angles, 0.05, drive.max_range)
+        results.append(runtime.process(scan, odometry, stamp0 + 0.1 * k))
+        truths.append(truth.copy())
+    return truths, results
+
+
+@pytest.fixture(scope="module")
+def saved_loop(tmp_path_factory):
+    """Two laps of LoopDrive mapped (the map frame is the world's), saved to a session."""
+    drive = LoopDrive(seed=2, steps_per_lap=60)
+    runtime = SlamRuntime(override(SlamConfig(), {**LOCKSTEP, "capacity.max_nodes": 300,
+                                                  "capacity.max_scans": 400}),
+                          initial_pose=drive.path[0])
+    scan = PointScan(len(drive.angles))
+    feed(runtime, drive, 120, scan)
+    assert runtime.slam.loops_closed >= 1
+    path = tmp_path_factory.mktemp("saved") / "session.npz"
+    runtime.save(path)
+    return path, drive, scan
+
+
+def test_nearest_nodes_counts_heading_as_distance():
+    poses = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, math.pi], [2.0, 0.0, 0.0], [0.4, 0.0, 0.1]])
+    out, d2 = np.zeros(2, np.int64), np.zeros(2)
+    assert nearest_nodes(poses, 4, 0.5, 0.0, 0.0, 0.0, out, d2) == 2
+    assert list(out) == [1, 3]  # heading ignored: the nearest positions
+    nearest_nodes(poses, 4, 0.5, 0.0, 0.0, 2.0, out, d2)
+    assert list(out) == [3, 0]  # node 1 faces the other way: 2π m away
+
+
+def test_localization_finds_tracks_and_changes_nothing(saved_loop, tmp_path):
+    path, drive, scan = saved_loop
+    before = sha256(path)
+    runtime = SlamRuntime.localize(path)  # no prior: the first scans are searched for
+    saved = runtime.slam.saved
+    digest = saved.digest()
+    truths, results = feed(runtime, drive, 90, scan)
+    known = [(r.pose, t) for r, t in zip(results, truths) if not np.isnan(r.pose[0])]
+    assert runtime.slam.counts["committed"] == 1 and runtime.slam.phase == TRACKING
+    assert len(known) >= 60, f"a pose for {len(known)} of 90 scans"  # confirmed within ~2 s
+    errors = [math.hypot(*between(p, t)[:2]) for p, t in known]
+    assert np.mean(errors) < 0.05, np.mean(errors)
+    assert max(abs(between(p, t)[2]) for p, t in known) < math.radians(3)
+    # nothing changed: not the file, not the map in memory, and nothing can write it
+    assert sha256(path) == before and saved.digest() == digest
+    assert runtime.slam.n_scans == 90 and len(runtime.trajectory()[0]) == len(known)
+    with pytest.raises(ValueError, match="read-only"):
+        saved.poses[0, 0] = 1.0
+    with pytest.raises(ValueError, match="localization run changes no session"):
+        runtime.save(tmp_path / "x.npz")
+
+
+def test_a_robot_carried_away_is_lost_then_found_again(saved_loop):
+    path, drive, scan = saved_loop
+    # told it starts a metre and a half from where it is: tracking cannot hold
+    start = compose(drive.path[drive.step % len(drive.path)], np.array([1.5, 0.5, 0.8]))
+    runtime = SlamRuntime.localize(path, initial_pose=start, changes=LOCKSTEP)
+    truths, results = feed(runtime, drive, 70, scan)
+    loc = runtime.slam
+    assert loc.counts["lost"] == 1 and loc.counts["committed"] == 2
+    assert loc.phase == TRACKING
+    e = between(results[-1].pose, truths[-1])
+    assert math.hypot(e[0], e[1]) < 0.1 and abs(e[2]) < math.radians(3)
+
+
+def test_a_kidnapped_robot_in_a_generated_world_is_found():
+    path = loop_path(60)
+    world = room_world(7, size=(12.0, 9.0), boxes=14, walls=1, keep_clear=path)
+    poses, nodes = map_from(world, path)
+    config = SlamConfig()
+    localizer = Localizer(config, SavedMap(poses, nodes, len(poses)), seed=3)
+    rng = np.random.default_rng(5)
+    for trial in range(3):  # three places, none told
+        localizer.reset()
+        k0 = int(rng.integers(len(path)))
+        scan = PointScan(len(ANGLES))
+        for k in range(k0, k0 + 30):
+            truth = path[k % len(path)]
+            odometry = truth + rng.normal(0, 0.005, 3)
+            scan.set_ranges(scan_at(world, truth, ANGLES, 12.0, 0.01, rng), ANGLES, 0.05, 12.0)
+            result = localizer.step(scan, odometry, 0.1 * k)
+        assert localizer.phase == TRACKING, (trial, localizer.status)
+        e = between(result.pose, truth)
+        assert math.hypot(e[0], e[1]) < 0.1 and abs(e[2]) < math.radians(3), (trial, e)
+
+
+def test_twin_rooms_stay_in_question_instead_of_a_wrong_pose():
+    room = room_world(5, size=(6.0, 5.0), boxes=4, walls=1)
+    world = np.vstack([room, room + [8.0, 0.0, 8.0, 0.0]])  # the same room 8 m to the right
+    corners = ((1.5, 1.5, 0.0), (4.5, 1.5, 1.6), (4.5, 3.5, 3.1), (1.5, 3.5, -1.6),
+               (3.0, 2.5, 0.8))
+    poses, nodes = map_from(world, [(x + dx, y, t) for dx in (0.0, 8.0) for x, y, t in corners])
+    localizer = Localizer(SlamConfig(), SavedMap(poses, nodes, len(poses)), seed=1)
+    rng = np.random.default_rng(2)
+    scan = PointScan(len(ANGLES))
+    for k in range(40):  # a small circle in the left room
+        a = 2 * math.pi * k / 40
+        truth = np.array([3.0 + 0.6 * math.cos(a), 2.5 + 0.6 * math.sin(a), a + math.pi / 2])
+        scan.set_ranges(scan_at(world, truth, ANGLES, 12.0, 0.01, rng), ANGLES, 0.05, 12.0)
+        result = localizer.step(scan, truth, 0.1 * k)  # perfect odometry: only the map decides
+        assert np.isnan(result.pose[0]), f"committed {result.pose} at scan {k}"
+    assert localizer.phase == CONFIRMING and localizer.n_candidates >= 2
+    x = sorted(localizer.candidates()[:, 0])
+    assert x[0] < 6.0 < x[-1]  # one candidate in each room
+
+
+def test_a_corrupt_or_foreign_session_is_refused(saved_loop, tmp_path):
+    path, _, _ = saved_loop
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(path.read_bytes()[:-100])
+    with pytest.raises(SessionError, match="bad.npz"):
+        SlamRuntime.localize(bad)
+    foreign = tmp_path / "foreign.npz"
+    foreign.write_bytes(b"PK\x03\x04 not a session")
+    with pytest.raises(SessionError, match="foreign.npz"):
+        SlamRuntime.localize(foreign)
+
+
+def test_tracking_allocates_nothing_per_scan_after_warm_up(saved_loop):
+    path, drive, _ = saved_loop
+    # one lap of scans, driven again and again with exact odometry (no new arrays per tick)
+    records = [drive.next() for _ in range(len(drive.path))]
+    scans = [PointScan.from_ranges(r, drive.angles, 0.05, drive.max_range) for _, _, r in records]
+    runtime = SlamRuntime.localize(path, initial_pose=records[0][0], changes=LOCKSTEP)
+
+    def run(first, count):
+        for k in range(first, first + count):
+            runtime.process(scans[k % len(scans)], records[k % len(scans)][0], 0.1 * k)
+
+    run(0, 300)  # kernels compiled, numba's dispatch caches filled
+    tracemalloc.start()
+    try:
+        run(300, 200)
+        before = tracemalloc.get_traced_memory()[0]
+        run(500, 1000)
+        after = tracemalloc.get_traced_memory()[0]
+    finally:
+        tracemalloc.stop()
+    assert runtime.slam.phase == TRACKING and runtime.slam.counts["lost"] == 0
+    assert "trajectory capacity reached" in runtime.status  # 400 poses kept, then said
+    assert after - before <= 2000, f"traced memory grew {after - before} B over 1000 scans"
+
+
+# ---------------------------------------------------------------------- multi-session mapping
+def simulated_drive(world: World, lidar: Lidar, poses, rng):
+    """The simulator's LiDAR along ``poses`` with noisy wheel odometry: (truth, odometry,
+    ranges) per scan."""
+    odometry = np.array(poses[0], dtype=np.float64)
+    for k, truth in enumerate(poses):
+        if k:
+            step = between(truth, poses[k - 1])
+            moved = math.hypot(step[0], step[1])
+            noise = rng.normal(0, 1, 3) * (0.03 * moved, 0.03 * moved, 0.02 * moved + 0.01 * abs(step[2]))
+            odometry = compose(odometry, step + noise)
+        yield truth, odometry, lidar.scan(truth, rng).copy()
+
+
+def run_session(runtime, world, lidar, poses, rng, stamp0=0.0):
+    scan = PointScan(lidar.config.beams)
+    c = lidar.config
+    for k, (truth, odometry, ranges) in enumerate(simulated_drive(world, lidar, poses, rng)):
+        scan.set_ranges(ranges, lidar.angles, c.min_range, c.max_range)
+        runtime.process(scan, odometry, stamp0 + k * 0.1)
+    return runtime
+
+
+def test_two_sessions_from_unknown_places_make_one_map_as_good_as_one_run(tmp_path):
+    lap = loop_path(120)
+    segments = room_world(11, size=(12.0, 9.0), boxes=14, walls=0, keep_clear=lap)
+    world = World("loop room", segments, (0.0, 0.0, 12.0, 9.0), tuple(lap[0]))
+    lidar = Lidar(world, lidar_config({"beams": 360, "max_range": 12.0, "noise_std": 0.01}))
+    first, second = lap[:70], lap[55:120]  # the second starts inside the first's map
+    config = override(SlamConfig(), {**LOCKSTEP, "capacity.max_nodes": 400,
+                                     "capacity.max_scans": 400})
+
+    one = SlamRuntime(config, initial_pose=lap[0])
+    run_session(one, world, lidar, lap, np.random.default_rng(1))
+    single = map_error(world, one.slam.node_poses(), one.slam.nodes, one.slam.n_nodes)
+
+    a = SlamRuntime(config, initial_pose=first[0])
+    run_session(a, world, lidar, first, np.random.default_rng(1))
+    a.save(tmp_path / "a.npz")
+    n_first = a.slam.n_nodes
+    b = SlamRuntime.resume(tmp_path / "a.npz", anywhere=True)  # where it starts: not told
+    run_session(b, world, lidar, second, np.random.default_rng(2), stamp0=100.0)
+    slam = b.slam
+    assert slam.locator is None, "the second session never found where it started"
+    assert slam.n_nodes > n_first + 5
+    joined = slam.graph.ij[: slam.graph.n_edges]
+    assert any(i < n_first <= j for i, j in joined), "no edge joins the sessions"
+    both = map_error(world, slam.node_poses(), slam.nodes, slam.n_nodes)
+    print(f"map error: one run {single:.4f} m, two sessions {both:.4f} m")
+    assert both <= 1.5 * single, f"two sessions {both:.4f} m vs one run {single:.4f} m"
+
+
+def test_the_simulator_localizes_a_kidnapped_robot_in_a_prior_map():
+    env = gym.make("SwarmSlam-v0", world="office", prior_map="world", kidnapped=True)
+    obs, info = env.reset(seed=4)
+    assert not info["localized"]
+    u = env.unwrapped
+    assert env.observation_space.contains(obs)
+    for _ in range(40):
+        obs, _, _, _, info = env.step(np.array([0.3, 0.4], np.float32))
+        assert env.observation_space.contains(obs)
+    assert info["localized"], info["slam_status"]
+    assert info["pose_error"] < 0.1 and info["heading_error"] < math.radians(3)
+    assert u.runtime.localizing and u.runtime.slam.saved.n_nodes > 20
+    env.close()
