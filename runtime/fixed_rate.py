@@ -36,9 +36,9 @@ import numpy as np
 from runtime import session
 from runtime.config import SlamConfig, from_dict, override, to_dict
 from runtime.inbox import ScanInbox
-from runtime.scan import PointScan
 from runtime.localization import Localizer
 from runtime.map_tracking import SavedMap
+from runtime.scan import PointScan
 from runtime.slam import GraphSlam
 from runtime.step_result import StepResult
 from runtime.warm_up import LoopDrive

@@ -138,8 +138,8 @@ def _replay(args) -> int:
 
     from_session = args.localize or args.resume
     if from_session and (args.config or args.preset):
-        raise SystemExit("swarmslam replay: --localize and --resume take the configuration "
-                         "saved in the session; drop --config/--preset")
+        raise ValueError("--localize and --resume take the configuration saved in the "
+                         "session; drop --config/--preset")
     m = replay(args.log, args.relations, args.optimizer, not args.no_odometry, args.out,
                args.limit, args.seed,
                config=None if from_session else _config(args, DEFAULT_PRESET),

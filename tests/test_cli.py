@@ -8,6 +8,7 @@ import numpy as np
 from runtime.warm_up import loop_path, room_world, scan_at
 from scripts.carmen import flaser_angles
 from scripts.cli import main
+from scripts.tum import read_tum
 
 
 def write_keyframe_log(path, steps=8, seed=0):
@@ -114,6 +115,23 @@ def test_simlog_then_replay_scores_against_the_simulators_truth(tmp_path, capsys
     assert "eT_local" in m and m["relations_local"] + m.get("relations_global", 0) == m[
         "relations_used"]
     assert main(["simlog", str(tmp_path / "x.clf"), "--rate", "0"]) == 2
+    # map once, localize later (no prior), and extend the map from an unknown place
+    session = out / "session.npz"
+    saved = session.read_bytes()
+    loc = tmp_path / "loc"
+    assert main(["replay", str(log), "--start", "300", "--localize", str(session),
+                 "--out", str(loc)]) == 0
+    lm = json.loads((loc / "localization.json").read_text())
+    assert lm["scans"] == len(read_tum(loc / "trajectory.tum")[0]) + lm["runtime"][
+        "scans_without_pose"]
+    assert lm["scans_with_pose"] > 0.8 * lm["scans"] and lm["runtime"]["lost"] == 0
+    assert session.read_bytes() == saved  # the map it localized in is untouched
+    assert main(["replay", str(log), "--start", "400", "--resume", str(session),
+                 "--out", str(tmp_path / "more")]) == 0
+    more = json.loads((tmp_path / "more" / "metrics.json").read_text())
+    assert more["nodes"] > m["nodes"] and more["status"] == "ok"
+    assert main(["replay", str(log), "--localize", str(session), "--preset",
+                 "sick-lms200"]) == 2
     assert "--rate must be > 0" in capsys.readouterr().err
 
 

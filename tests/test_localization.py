@@ -10,6 +10,7 @@ import tracemalloc
 import gymnasium as gym
 import numpy as np
 import pytest
+from test_relocalization import ANGLES, map_from
 
 import swarmslam_sim  # noqa: F401  (registers SwarmSlam-v0)
 from runtime.config import SlamConfig, override
@@ -23,7 +24,6 @@ from runtime.warm_up import LoopDrive, loop_path, room_world, scan_at
 from swarmslam_sim.lidar import Lidar, lidar_config
 from swarmslam_sim.mapping import map_error
 from swarmslam_sim.world import World
-from test_relocalization import ANGLES, map_from
 
 LOCKSTEP = {"runtime.schedule": "lockstep"}
 
@@ -189,7 +189,8 @@ def simulated_drive(world: World, lidar: Lidar, poses, rng):
         if k:
             step = between(truth, poses[k - 1])
             moved = math.hypot(step[0], step[1])
-            noise = rng.normal(0, 1, 3) * (0.03 * moved, 0.03 * moved, 0.02 * moved + 0.01 * abs(step[2]))
+            sigma = (0.03 * moved, 0.03 * moved, 0.02 * moved + 0.01 * abs(step[2]))
+            noise = rng.normal(0, 1, 3) * sigma
             odometry = compose(odometry, step + noise)
         yield truth, odometry, lidar.scan(truth, rng).copy()
 

@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from runtime.fixed_rate import SlamRuntime
-from runtime.pose import between
 from runtime.localization import TRACKING
+from runtime.pose import between
 from runtime.relocalization import Ambiguous, Located
 from runtime.scan import PointScan
 from runtime.writers import write_json_atomic
