@@ -49,7 +49,7 @@ class GraphSlam:
         node. Without ``budget_end`` the back end does all its pending work now (the lockstep
         schedule); with it, only the slices that fit before then (``clock`` reads the time)."""
         if self.locator is not None:  # a resumed session, started at an unknown place
-            return self._rejoin(scan, odometry, stamp, clock)
+            return self._rejoin(scan, odometry, stamp, clock, budget_end)
         start = clock() if clock is not None else 0.0
         tracked = self.front_end.track(scan, odometry, stamp)  # Alg. 5 + Alg. 6
         took = clock() - start if clock is not None else 0.0
@@ -66,7 +66,7 @@ class GraphSlam:
         saved = SavedMap(self.graph.poses, self.nodes, self.graph.n_nodes)
         self.locator = Localizer(self.config, saved, seed)
 
-    def _rejoin(self, scan, odometry, stamp, clock) -> StepResult:
+    def _rejoin(self, scan, odometry, stamp, clock, budget_end) -> StepResult:
         located = self.locator.step(scan, odometry, stamp, clock)
         if self.locator.phase != TRACKING:
             return located  # no pose yet: nothing is added to the map
@@ -77,7 +77,7 @@ class GraphSlam:
         self.locator = None
         if joined:
             self.back_end.enqueue(self.front_end.keyframe)  # Alg. 7 for the new node
-        closed = self.run_back_end(clock, None)
+        closed = self.run_back_end(clock, budget_end)
         return StepResult(self.pose(), joined, closed, located.error, located.front_end_seconds)
 
     def run_back_end(self, clock=None, budget_end: float | None = None) -> bool:
@@ -126,7 +126,9 @@ class GraphSlam:
 
     @property
     def status(self) -> str:
-        said = [s for s in (self.front_end.status, self.back_end.status) if s != "ok"]
+        parts = (self.front_end.status, self.back_end.status,
+                 "ok" if self.locator is None else self.locator.status)
+        said = [s for s in parts if s != "ok"]
         dropped = self.back_end.dropped
         if dropped:
             said.append(f"loop queue full: {dropped} loop searches dropped "
@@ -136,6 +138,8 @@ class GraphSlam:
     def set_evaluation_share(self, share: float) -> None:
         """The swarm's budget for the next scans, a share (0–1] of the configured one."""
         self.front_end.matcher.set_evaluation_share(share)
+        if self.locator is not None:
+            self.locator.set_evaluation_share(share)
 
     def drain(self, clock) -> int:
         """All deferred back-end work now, however long it takes; the slices run."""
