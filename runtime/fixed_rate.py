@@ -298,13 +298,17 @@ class SlamRuntime:
 
     @classmethod
     def resume(cls, path, clock=time.perf_counter, anywhere: bool = False,
-               changes: dict | None = None) -> SlamRuntime:
+               changes: dict | None = None, more_scans: int = 0) -> SlamRuntime:
         """A runtime continuing the session saved at ``path``. ``anywhere``: the new run may
         start at any place in the saved map — it is localized first, then joined to the graph
         (multi-session mapping, :meth:`GraphSlam.rejoin`). ``changes``: configuration
-        overrides (dotted keys), e.g. a replay's trajectory capacity."""
+        overrides (dotted keys). ``more_scans``: the trajectory keeps the saved scans' poses and
+        this many more (its capacity grows if need be)."""
 
         def build(state, config):
+            kept = len(state["slam"]["front_end"]["scan_node"]) + more_scans
+            if kept > config.capacity.max_scans:
+                config = override(config, {"capacity.max_scans": kept})
             runtime = cls(config, seed=int(state["seed"]), clock=clock)
             runtime.restore(state)  # the initial pose too
             if anywhere:

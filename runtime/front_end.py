@@ -32,6 +32,15 @@ CAPACITY_STATUS = "capacity reached: localising against the last node, map froze
 TRAJECTORY_STATUS = "trajectory capacity reached: poses no longer recorded"
 
 
+def odometry_motion(odometry, last_odometry, have_odometry: bool) -> np.ndarray:
+    """Odometry's motion since ``last_odometry`` (zero at the first reading); the reading is
+    copied into ``last_odometry`` (callers may reuse their array)."""
+    odometry = np.asarray(odometry, dtype=np.float64)
+    delta = between(odometry, last_odometry) if have_odometry else np.zeros(3)
+    last_odometry[:] = odometry
+    return delta
+
+
 @dataclass
 class Tracking:
     pose: np.ndarray  # the scan's pose in the map frame
@@ -231,9 +240,7 @@ class FrontEnd:
     def _predicted_motion(self, odometry):
         if odometry is None:
             return self.motion  # scans only: assume the last motion continues
-        odometry = np.asarray(odometry, dtype=np.float64)
-        delta = between(odometry, self.last_odometry) if self.have_odometry else np.zeros(3)
-        self.last_odometry[:] = odometry  # copied: callers may reuse their array
+        delta = odometry_motion(odometry, self.last_odometry, self.have_odometry)
         self.have_odometry = True
         return delta
 

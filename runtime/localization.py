@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from runtime.config import SlamConfig
-from runtime.front_end import TRAJECTORY_STATUS
+from runtime.front_end import TRAJECTORY_STATUS, odometry_motion
 from runtime.map_tracking import MapTracker, SavedMap
 from runtime.pose import between
 from runtime.relocalization import Located, Relocalizer
@@ -186,9 +186,7 @@ class Localizer:
         """Odometry's motion since the last scan, or None (the trackers repeat their last)."""
         if odometry is None:
             return None
-        odometry = np.asarray(odometry, dtype=np.float64)
-        step = between(odometry, self.last_odometry) if self.have_odometry else np.zeros(3)
-        self.last_odometry[:] = odometry
+        step = odometry_motion(odometry, self.last_odometry, self.have_odometry)
         self.have_odometry = True
         return step
 
@@ -215,9 +213,12 @@ class Localizer:
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         """Timestamps and poses of the scans with a committed pose."""
-        n = self.n_scans
-        known = ~np.isnan(self.poses[:n, 0])
-        return self.stamps[:n][known].copy(), self.poses[:n][known].copy()
+        known = self.has_pose()
+        return self.stamps[: self.n_scans][known], self.poses[: self.n_scans][known]
+
+    def has_pose(self) -> np.ndarray:
+        """Which recorded scans have a committed pose (a boolean mask)."""
+        return ~np.isnan(self.poses[: self.n_scans, 0])
 
     def set_evaluation_share(self, share: float) -> None:
         """The runtime's swarm budget for this tick, shared by the candidates followed."""
@@ -242,5 +243,5 @@ class Localizer:
         tracked = self.counts["tracked_scans"]
         return {"mode": "localization", "phase": self.phase, "saved_nodes": self.saved.n_nodes,
                 **self.counts, "mean_fit": self.fit_sum / tracked if tracked else 0.0,
-                "scans_without_pose": int(np.isnan(self.poses[: self.n_scans, 0]).sum()),
+                "scans_without_pose": int(self.n_scans - self.has_pose().sum()),
                 "status": self.status}

@@ -29,6 +29,14 @@ from runtime.scan_matcher import ScanMatcher
 
 
 @njit(cache=True)
+def node_distance2(poses, m, x, y, theta, heading_weight):
+    """Squared distance from ``(x, y, theta)`` to node ``m``, the heading difference ×
+    ``heading_weight`` counted as distance."""
+    d = (theta - poses[m, 2] + math.pi) % (2.0 * math.pi) - math.pi
+    return (poses[m, 0] - x) ** 2 + (poses[m, 1] - y) ** 2 + (heading_weight * d) ** 2
+
+
+@njit(cache=True)
 def nearest_nodes(poses, n, x, y, theta, heading_weight, out, out_d2):
     """The ``len(out)`` nodes of ``poses[:n]`` nearest ``(x, y, theta)`` (heading difference
     × ``heading_weight`` counted as distance), nearest first, into ``out`` / ``out_d2``.
@@ -36,8 +44,7 @@ def nearest_nodes(poses, n, x, y, theta, heading_weight, out, out_d2):
     k = 0
     size = out.shape[0]
     for m in range(n):
-        d = (theta - poses[m, 2] + math.pi) % (2.0 * math.pi) - math.pi
-        d2 = (poses[m, 0] - x) ** 2 + (poses[m, 1] - y) ** 2 + (heading_weight * d) ** 2
+        d2 = node_distance2(poses, m, x, y, theta, heading_weight)
         if k == size and d2 >= out_d2[k - 1]:
             continue
         if k < size:
@@ -142,10 +149,8 @@ class MapTracker:
         n = nearest_nodes(self.saved.poses, self.saved.n_nodes, pose[0], pose[1], pose[2],
                           lc.heading_weight, self._near, self._near_d2)
         if self.anchor >= 0:
-            a = self.saved.poses[self.anchor]
-            d = (pose[2] - a[2] + math.pi) % (2 * math.pi) - math.pi
-            held = math.sqrt((a[0] - pose[0]) ** 2 + (a[1] - pose[1]) ** 2
-                             + (lc.heading_weight * d) ** 2)
+            held = math.sqrt(node_distance2(self.saved.poses, self.anchor, pose[0], pose[1],
+                                            pose[2], lc.heading_weight))
             if math.sqrt(self._near_d2[0]) + lc.reanchor_distance >= held:
                 return
         self.anchor = int(self._near[0])

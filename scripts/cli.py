@@ -149,18 +149,17 @@ def _replay(args) -> int:
         print(f"{m['scans']} scans localized in {args.localize}: {m['scans_with_pose']} with a "
               f"pose, {r['committed']} commits, {r['lost']} lost; latency "
               f"{m['latency_ms_median']:.1f} ms median / {m['latency_ms_p99']:.1f} ms p99")
-        if "eT" in m:
-            print(f"relations: eT {m['eT']:.4f} ± {m['eT_std']:.4f} m, "
-                  f"eR {m['eR_deg']:.3f} ± {m['eR_std']:.3f} deg ({m['relations_used']} used)")
-        if args.out:
-            print(f"wrote {args.out}/trajectory.tum, localization.json (the session is unchanged)")
-        return 0
-    print(f"{m['scans']} scans, {m['nodes']} nodes, {m['loops_accepted']} loops closed, "
-          f"{m['real_time_factor']:.1f}x real time, latency {m['latency_ms_median']:.1f} ms "
-          f"median / {m['latency_ms_p99']:.1f} ms p99")
+    else:
+        print(f"{m['scans']} scans, {m['nodes']} nodes, {m['loops_accepted']} loops closed, "
+              f"{m['real_time_factor']:.1f}x real time, latency {m['latency_ms_median']:.1f} ms "
+              f"median / {m['latency_ms_p99']:.1f} ms p99")
     if "eT" in m:
         print(f"relations: eT {m['eT']:.4f} ± {m['eT_std']:.4f} m, "
               f"eR {m['eR_deg']:.3f} ± {m['eR_std']:.3f} deg ({m['relations_used']} used)")
+    if args.localize:
+        if args.out:
+            print(f"wrote {args.out}/trajectory.tum, localization.json (the session is unchanged)")
+        return 0
     if args.out:
         print(f"wrote {args.out}/map.pgm, map.yaml, map.png, trajectory.tum, graph.g2o, metrics.json")
     if m["status"] != "ok":

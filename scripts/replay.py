@@ -80,12 +80,7 @@ def replay_runtime(scans: int, optimizer=None, seed=0, config: SlamConfig | None
     if localize is not None:
         changes["capacity.max_scans"] = scans
         return SlamRuntime.localize(localize, changes=changes)
-    runtime = SlamRuntime.resume(resume, anywhere=True, changes=changes)
-    front_end = runtime.slam.front_end
-    if front_end.n_scans + scans > front_end.scan_node.shape[0]:
-        changes["capacity.max_scans"] = front_end.n_scans + scans
-        runtime = SlamRuntime.resume(resume, anywhere=True, changes=changes)
-    return runtime
+    return SlamRuntime.resume(resume, anywhere=True, changes=changes, more_scans=scans)
 
 
 def replay_run(log_path, relations_path=None, optimizer: str | None = None, odometry=True,

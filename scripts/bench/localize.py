@@ -135,7 +135,7 @@ def tracking(name: str, lasers, session: Path, truth, echo=print) -> dict:
         progress.update(note=runtime.status)
     progress.close()
     _, poses = runtime.slam.trajectory()
-    known = ~np.isnan(runtime.slam.poses[: runtime.slam.n_scans, 0])
+    known = runtime.slam.has_pose()
     e = between(poses, truth[half:][known])
     report = runtime.report()
     return {
