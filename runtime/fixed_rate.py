@@ -68,6 +68,11 @@ class RuntimeStats:
     def recent(self) -> np.ndarray:
         return self.latency[: min(self.scans, self.latency.shape[0])]
 
+    @property
+    def last_latency(self) -> float:
+        """The latest recorded tick's latency (s); 0 before any."""
+        return float(self.latency[(self.scans - 1) % self.latency.shape[0]]) if self.scans else 0.0
+
     def summary(self) -> dict:
         recent = self.recent()
         return {

@@ -79,6 +79,7 @@ class FrontEnd:
         self.degenerate_matches = 0  # matches held to the prediction along a direction
         self.degeneracy = None  # the last match's (runtime.degeneracy), when measured
         self.status = "ok"
+        self.evaluations = 0  # by the last match (what a viewer plots)
 
     # ------------------------------------------------------------------ Alg. 5 + Alg. 6
     def track(self, scan: PointScan, odometry=None, stamp: float = 0.0) -> Tracking:
@@ -90,6 +91,7 @@ class FrontEnd:
         step = self._predicted_motion(odometry)
         guess = compose(self.rel, step)
         match = self.matcher.align_scans(scan, self.reference, guess)  # Alg. 5
+        self.evaluations = match.evaluations
         pose = match.pose
         self.degeneracy = None
         if self.config.front_end.degeneracy_ratio > 0:

@@ -12,23 +12,73 @@ import tempfile
 from pathlib import Path
 
 
-def write_bytes_atomic(path, data: bytes) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+def creation_mode() -> int:
+    """The mode ``open()`` gives a new file under the process's umask (0644 under 022):
+    ``mkstemp`` makes its temp files 0600, which a map server running as another user
+    cannot read."""
     try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
+        with open("/proc/self/status", encoding="ascii") as f:  # Linux: read, not set
+            for line in f:
+                if line.startswith("Umask:"):
+                    return 0o666 & ~int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)  # elsewhere: set and restore (a brief window for other threads)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+class AtomicFile:
+    """A file that appears at ``path`` complete or not at all: written to a temp file beside
+    it, then :meth:`commit` flushes, fsyncs and renames it; :meth:`discard` (or leaving a
+    ``with`` block by an exception) removes it."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd, self.tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp",
+                                        dir=self.path.parent)
         try:
-            os.unlink(tmp)
+            os.fchmod(fd, creation_mode())
+        except BaseException:
+            os.close(fd)
+            os.unlink(self.tmp)
+            raise
+        self.file = os.fdopen(fd, "wb")
+
+    def commit(self) -> Path:
+        try:
+            self.file.flush()
+            os.fsync(self.file.fileno())
+            self.file.close()
+            os.replace(self.tmp, self.path)
+        except BaseException:
+            self.discard()
+            raise
+        return self.path
+
+    def discard(self) -> None:
+        self.file.close()
+        try:
+            os.unlink(self.tmp)
         except FileNotFoundError:
             pass
-        raise
-    return path
+
+    def __enter__(self):
+        return self.file
+
+    def __exit__(self, kind, value, tb):
+        if kind is None:
+            self.commit()
+        else:
+            self.discard()
+
+
+def write_bytes_atomic(path, data: bytes) -> Path:
+    out = AtomicFile(path)
+    with out as f:
+        f.write(data)
+    return out.path
 
 
 def write_text_atomic(path, text: str) -> Path:

@@ -17,6 +17,7 @@ from runtime.config import (
     preset,
     to_toml,
 )
+from scripts.run_view import RunWatch
 
 
 def _bench_matcher(args) -> int:
@@ -30,7 +31,7 @@ def _bench_matcher(args) -> int:
         if d not in DATASETS:
             raise SystemExit(f"unknown dataset {d!r}; choose from {', '.join(DATASETS)}")
     bench_matcher(data, optimizers, datasets, paper=not args.no_paper, limit=args.limit,
-                  seed=args.seed, json_path=args.json)
+                  seed=args.seed, json_path=args.json, plots=args.plots)
     if args.json:
         print(f"wrote {args.json}")
     return 0
@@ -40,7 +41,7 @@ def _bench_posegraph(args) -> int:
     from scripts.bench.posegraph import bench_posegraph
     from scripts.datasets import find_datasets
 
-    bench_posegraph(find_datasets(args.data), args.repeats, args.json)
+    bench_posegraph(find_datasets(args.data), args.repeats, args.json, plots=args.plots)
     return 0
 
 
@@ -64,7 +65,7 @@ def _bench_slam(args) -> int:
     optimizers = tuple(o.strip() for o in args.optimizers.split(",") if o.strip())
     seeds = tuple(int(v) for v in args.seeds.split(",") if v.strip())
     bench_slam(find_datasets(args.data), optimizers, logs, modes, args.limit, args.out, args.json,
-               config=_config(args, DEFAULT_PRESET), seeds=seeds)
+               config=_config(args, DEFAULT_PRESET), seeds=seeds, plots=args.plots)
     return 0
 
 
@@ -75,7 +76,8 @@ def _bench_localize(args) -> int:
     logs = _logs(args)
     if args.queries < 1:
         raise SystemExit(f"--queries must be at least 1, got {args.queries}")
-    bench_localize(find_datasets(args.data), logs, args.queries, args.seed, args.maps, args.json)
+    bench_localize(find_datasets(args.data), logs, args.queries, args.seed, args.maps, args.json,
+                   plots=args.plots)
     if args.json:
         print(f"wrote {args.json}")
     return 0
@@ -86,7 +88,7 @@ def _bench_generalization(args) -> int:
 
     cases = select([n.strip() for n in (args.cases or "").split(",") if n.strip()])
     bench_generalization(cases, args.json, args.keep, _config(args, DEFAULT_PRESET),
-                         floor=not args.no_floor)
+                         floor=not args.no_floor, plots=args.plots)
     if args.json:
         print(f"wrote {args.json}")
     return 0
@@ -95,7 +97,7 @@ def _bench_generalization(args) -> int:
 def _bench_env(args) -> int:
     from scripts.bench.env import bench_env
 
-    bench_env(args.world, args.steps, args.slam_steps, args.json)
+    bench_env(args.world, args.steps, args.slam_steps, args.json, plots=args.plots)
     if args.json:
         print(f"wrote {args.json}")
     return 0
@@ -106,11 +108,12 @@ def _bench_runtime(args) -> int:
     from scripts.datasets import find_datasets
 
     if args.soak is not None:
-        bench_soak(args.soak, args.json)
+        bench_soak(args.soak, args.json, plots=args.plots)
     else:
         bench_runtime(find_datasets(args.data), args.optimizer, args.realtime_minutes,
                       args.traced_ticks, args.limit, args.json,
-                      config=_config(args, DEFAULT_PRESET))
+                      config=_config(args, DEFAULT_PRESET), plots=args.plots,
+                      view_scans=args.view_scans)
     if args.json:
         print(f"wrote {args.json}")
     return 0
@@ -143,7 +146,8 @@ def _replay(args) -> int:
     m = replay(args.log, args.relations, args.optimizer, not args.no_odometry, args.out,
                args.limit, args.seed,
                config=None if from_session else _config(args, DEFAULT_PRESET),
-               localize=args.localize, resume=args.resume, start=args.start)
+               localize=args.localize, resume=args.resume, start=args.start,
+               watch=RunWatch.from_args(args))
     if args.localize:
         r = m["runtime"]
         print(f"{m['scans']} scans localized in {args.localize}: {m['scans_with_pose']} with a "
@@ -194,7 +198,8 @@ def _lidar(args) -> int:
     from scripts.live import run_live
 
     run_live(args.port, args.model, args.mode, args.out, args.rate, args.seconds, args.resume,
-             config=_config(args, f"rplidar-{args.model}"), localize=args.localize)
+             config=_config(args, f"rplidar-{args.model}"), localize=args.localize,
+             watch=RunWatch.from_args(args))
     return 0
 
 
@@ -236,7 +241,7 @@ def _demo(args) -> int:
 
     run_exploration_demo(Path(args.out), world=args.world, optimizer=args.optimizer,
                          seed=args.seed, max_steps=args.steps or 1500,
-                         config=_config(args, "sim-rplidar-a1"))
+                         config=_config(args, "sim-rplidar-a1"), watch=RunWatch.from_args(args))
     return 0
 
 
@@ -246,6 +251,15 @@ def _config_options(parser, default: str) -> None:
                              "(see: swarmslam config show)")
     parser.add_argument("--preset", choices=list(PRESETS), help=f"configuration preset "
                         f"(default: {default})")
+
+
+def _view_options(parser) -> None:
+    parser.add_argument("--view", action="store_true",
+                        help="watch it live in rerun (extra 'view'; without a display it serves "
+                             "the web viewer and prints the address)")
+    parser.add_argument("--record", metavar="FILE.rrd", help="save the rerun stream to open later")
+    parser.add_argument("--mcap", metavar="FILE", help="an MCAP recording Foxglove opens "
+                                                       "(scans, poses, frames, the map)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -277,6 +291,7 @@ def build_parser() -> argparse.ArgumentParser:
     saved.add_argument("--localize", metavar="SESSION",
                        help="localize in a saved session's map (never changed), no prior")
     _config_options(li, "the model's preset")
+    _view_options(li)
     li.set_defaults(func=_lidar)
     em = sub.add_parser("emulate", help="a virtual RPLidar on a pseudo-terminal")
     source = em.add_mutually_exclusive_group()
@@ -299,6 +314,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--matcher-only", action="store_true",
                       help="runtime only, no simulator: chain swarm matches around a synthetic loop")
     _config_options(demo, "the simulator's preset")
+    _view_options(demo)
     demo.set_defaults(func=_demo)
 
     rp = sub.add_parser("replay", help="run the SLAM over a CARMEN log")
@@ -319,6 +335,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="extend a saved session's map from wherever the log starts in it "
                             "(multi-session mapping)")
     _config_options(rp, DEFAULT_PRESET)
+    _view_options(rp)
     rp.set_defaults(func=_replay)
 
     from swarmslam_sim.survey import ODOMETRY, SCANNERS, SITES
@@ -346,6 +363,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--no-paper", action="store_true", help="skip the paper-form variants")
     m.add_argument("--seed", type=int, default=0)
     m.add_argument("--json", help="write results here (atomically)")
+    m.add_argument("--plots", metavar="DIR", help="write the figures (PNG) here (extra 'plots')")
     m.set_defaults(func=_bench_matcher)
     s = bsub.add_parser("slam", help="SLAM on the raw Intel/ACES3/fr-clinic logs, scored by "
                                      "relations over seeds")
@@ -357,6 +375,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--limit", type=int, help="only the first N scans of each log")
     s.add_argument("--out", help="keep each run's map, trajectory and graph here")
     s.add_argument("--json", help="write results here (atomically)")
+    s.add_argument("--plots", metavar="DIR", help="write the figures (PNG) here (extra 'plots')")
     _config_options(s, DEFAULT_PRESET)
     s.set_defaults(func=_bench_slam)
     ge = bsub.add_parser("generalization", help="SLAM on seeded simulated surveys, scored "
@@ -366,6 +385,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="skip the perfect-scan-matching floor (halves the time)")
     ge.add_argument("--keep", metavar="DIR", help="keep the generated logs here")
     ge.add_argument("--json", help="write results here (atomically)")
+    ge.add_argument("--plots", metavar="DIR", help="write the figures (PNG) here (extra 'plots')")
     _config_options(ge, DEFAULT_PRESET)
     ge.set_defaults(func=_bench_generalization)
     lo = bsub.add_parser("localize", help="global relocalization in maps of Intel/ACES3/"
@@ -377,17 +397,20 @@ def build_parser() -> argparse.ArgumentParser:
     lo.add_argument("--maps", metavar="DIR", help="where the mapping runs are kept and reused "
                                                   "(default: ./swarmslam-maps)")
     lo.add_argument("--json", help="write results here (atomically)")
+    lo.add_argument("--plots", metavar="DIR", help="write the figures (PNG) here (extra 'plots')")
     lo.set_defaults(func=_bench_localize)
     pg = bsub.add_parser("posegraph", help="Gauss-Newton on the g2o benchmark graphs")
     pg.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
     pg.add_argument("--repeats", type=int, default=5)
     pg.add_argument("--json", help="write results here (atomically)")
+    pg.add_argument("--plots", metavar="DIR", help="write the figures (PNG) here (extra 'plots')")
     pg.set_defaults(func=_bench_posegraph)
     env = bsub.add_parser("env", help="SwarmSlam-v0 steps/s with SLAM off and on, LiDAR scans/s")
     env.add_argument("--world", default="office")
     env.add_argument("--steps", type=int, default=5000, help="steps timed without SLAM")
     env.add_argument("--slam-steps", type=int, default=1000, help="steps timed with SLAM")
     env.add_argument("--json", help="write results here (atomically)")
+    env.add_argument("--plots", metavar="DIR", help="write the figures (PNG) here (extra 'plots')")
     env.set_defaults(func=_bench_env)
     rt = bsub.add_parser("runtime", help="the fixed-rate runtime on Intel: latency, misses, "
                                           "memory, accuracy; or --soak on simulated scans")
@@ -398,9 +421,12 @@ def build_parser() -> argparse.ArgumentParser:
     rt.add_argument("--traced-ticks", type=int, default=6000,
                     help="ticks measured under tracemalloc after warm-up")
     rt.add_argument("--limit", type=int, help="only the first N scans")
+    rt.add_argument("--view-scans", type=int, default=3000,
+                    help="scans ticked with and without a recording view attached (0: skip)")
     rt.add_argument("--soak", type=float, metavar="MINUTES",
                     help="instead: run this long on simulated scans, sampling memory")
     rt.add_argument("--json", help="write results here (atomically)")
+    rt.add_argument("--plots", metavar="DIR", help="write the figures (PNG) here (extra 'plots')")
     _config_options(rt, DEFAULT_PRESET)
     rt.set_defaults(func=_bench_runtime)
     return p

@@ -21,15 +21,26 @@ from runtime.writers import write_json_atomic
 from scripts.map_io import write_map
 from scripts.png import write_png
 from scripts.progress import Progress
+from scripts.run_view import frame_of
 from scripts.tum import write_tum
 from swarmslam_sim.exploration import FrontierExplorer
 
 
 def run_exploration_demo(out_dir, world: str = "office", optimizer: str | None = None,
                          seed: int = 0, max_steps: int = 1500, coverage_goal: float = 0.9,
-                         echo=print, config: SlamConfig | None = None) -> dict:
+                         echo=print, config: SlamConfig | None = None, watch=None) -> dict:
     """``config``: the SLAM's configuration (default: the simulator's preset for the LiDAR);
-    ``optimizer`` overrides its swarm method."""
+    ``optimizer`` overrides its swarm method. ``watch``: a :class:`scripts.run_view.RunWatch`
+    shown every step, with the true pose (closed at the end)."""
+    try:
+        return _explore(out_dir, world, optimizer, seed, max_steps, coverage_goal, echo, config,
+                        watch)
+    finally:
+        if watch is not None:
+            watch.close()
+
+
+def _explore(out_dir, world, optimizer, seed, max_steps, coverage_goal, echo, config, watch):
     if config is not None and optimizer is not None:
         config = config.with_optimizer(optimizer)
     env = gym.make("swarmslam_sim:SwarmSlam-v0", world=world, optimizer=optimizer or "abc",
@@ -52,6 +63,9 @@ def run_exploration_demo(out_dir, world: str = "office", optimizer: str | None =
         steps += 1
         errors.append(info["pose_error"])
         slam_ms.append(u.slam_ms)
+        if watch is not None and u.runtime is not None and u.runtime.last is not None:
+            watch.tick(u.runtime, frame_of(u.runtime, u.runtime.last, u.runtime.scan.points,
+                                           steps * u.dt, 1e-3 * u.slam_ms, info["true_pose"]))
         progress.update()
         if terminated:
             end = f"{coverage_goal:.0%} of the floor mapped"

@@ -21,6 +21,7 @@ from runtime.config import SlamConfig, override, preset
 from runtime.fixed_rate import SlamRuntime
 from runtime.writers import write_json_atomic
 from scripts.outputs import write_results
+from scripts.run_view import frame_of
 from scripts.tum import write_tum
 
 
@@ -34,10 +35,11 @@ def slam_config_for(model_name: str, rate_hz: float | None = None) -> SlamConfig
 def run_live(port: str, model: str = "a1", mode: str = "express", out_dir="swarmslam-live",
              rate_hz: float | None = None, seconds: float | None = None, resume=None,
              echo=print, stop: threading.Event | None = None,
-             config: SlamConfig | None = None, localize=None) -> dict:
+             config: SlamConfig | None = None, localize=None, watch=None) -> dict:
     """``config``: the whole configuration (default: the model's preset); ``rate_hz``
     overrides its tick rate. ``resume``: a session extended from wherever the scanner is in
-    its map (found first); ``localize``: a session to localize in, never changed."""
+    its map (found first); ``localize``: a session to localize in, never changed.
+    ``watch``: a :class:`scripts.run_view.RunWatch` shown after every tick that took a scan."""
     out = Path(out_dir)
     changes = {"runtime.rate_hz": rate_hz} if rate_hz is not None else None
     if localize:
@@ -70,6 +72,9 @@ def run_live(port: str, model: str = "a1", mode: str = "express", out_dir="swarm
 
     def on_tick(rt, result):
         now = time.monotonic()
+        if watch is not None and result is not None:
+            watch.tick(rt, frame_of(rt, result, rt.scan.points, time.time(),
+                                    rt.stats.last_latency))
         if seconds is not None and now - started >= seconds:
             stop.set()
         if now - last_print[0] >= 1.0:
@@ -92,6 +97,8 @@ def run_live(port: str, model: str = "a1", mode: str = "express", out_dir="swarm
         echo("stopping (Ctrl-C): saving")
     finally:
         lidar.close()
+        if watch is not None:
+            watch.close()
     return save_outputs(runtime, out, lidar.report(), echo)
 
 

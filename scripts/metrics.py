@@ -43,16 +43,9 @@ def is_failure(e_trans, e_rot, max_trans: float = 0.3, max_rot: float = 0.1):
 LOCAL_GAP = 300.0  # s: relations with endpoints closer in time are "local" (datasets README)
 
 
-def kummerle(stamps, poses, relations, tolerance: float = 1e-4,
-             local_gap: float = LOCAL_GAP) -> dict:
-    """Eqs. 22–23 for the relations whose two timestamps are both in the trajectory, over all
-    of them and apart for local (endpoints < ``local_gap`` s apart) and global ones
-    (``eT_local``, ``eR_local_deg``, ``relations_local``, likewise ``_global``; NaN-free: a
-    part with no relation is left out).
-
-    ``stamps`` and ``poses`` are the estimated trajectory (one pose per scan); a relation's
-    timestamp matches a scan within ``tolerance`` seconds.
-    """
+def relation_errors(stamps, poses, relations, tolerance: float = 1e-4):
+    """Each relation's errors (Eqs. 22–23 before averaging) for the relations whose two
+    timestamps are both in the trajectory: ``(mask of the relations used, e_t m, e_r deg)``."""
     stamps = np.asarray(stamps, dtype=np.float64)
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
     order = np.argsort(stamps)
@@ -71,7 +64,20 @@ def kummerle(stamps, poses, relations, tolerance: float = 1e-4,
         raise ValueError("no relation matches the trajectory's timestamps")
     estimated = between(poses[j[ok]], poses[i[ok]])  # δ_ij = x_j ⊖ x_i
     e_t, e_r = relative_errors(estimated, relations.delta[ok])
-    e_r = np.degrees(e_r)
+    return ok, e_t, np.degrees(e_r)
+
+
+def kummerle(stamps, poses, relations, tolerance: float = 1e-4,
+             local_gap: float = LOCAL_GAP) -> dict:
+    """Eqs. 22–23 for the relations whose two timestamps are both in the trajectory, over all
+    of them and apart for local (endpoints < ``local_gap`` s apart) and global ones
+    (``eT_local``, ``eR_local_deg``, ``relations_local``, likewise ``_global``; NaN-free: a
+    part with no relation is left out).
+
+    ``stamps`` and ``poses`` are the estimated trajectory (one pose per scan); a relation's
+    timestamp matches a scan within ``tolerance`` seconds.
+    """
+    ok, e_t, e_r = relation_errors(stamps, poses, relations, tolerance)
     out = {
         "eT": float(np.mean(e_t)),
         "eT_std": float(np.std(e_t)),

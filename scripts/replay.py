@@ -22,6 +22,7 @@ from scripts.metrics import kummerle
 from scripts.outputs import write_results
 from scripts.progress import Progress
 from scripts.relations import read_relations
+from scripts.run_view import frame_of
 from scripts.tum import write_tum
 
 
@@ -51,7 +52,7 @@ def robot_frame_scan(record, scan: PointScan) -> PointScan:
 def replay(log_path, relations_path=None, optimizer: str | None = None, odometry=True,
            out_dir=None, limit=None, seed=0, config: SlamConfig | None = None, label="replay",
            echo=print, schedule: str = "lockstep", localize=None, resume=None,
-           start: int = 0) -> dict:
+           start: int = 0, watch=None) -> dict:
     """Every scan of the log through :class:`SlamRuntime`, one tick each, as fast as it goes.
     The default schedule is lockstep (the whole back end every tick, as ``GraphSlam.step``);
     ``budgeted`` slices it as on a robot. ``optimizer`` overrides ``config``'s.
@@ -59,10 +60,11 @@ def replay(log_path, relations_path=None, optimizer: str | None = None, odometry
     ``localize``: a session file to localize in (its map is not changed; the outputs are the
     trajectory and ``localization.json``). ``resume``: a session to extend from wherever the
     log starts in it (multi-session mapping). Both take their configuration from the session.
-    ``start``: the first scan replayed."""
+    ``start``: the first scan replayed. ``watch``: a :class:`scripts.run_view.RunWatch` shown
+    every tick (closed at the end)."""
     return replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, seed,
                       config, label, schedule, localize=localize, resume=resume,
-                      start=start)[0]
+                      start=start, watch=watch)[0]
 
 
 def replay_runtime(scans: int, optimizer=None, seed=0, config: SlamConfig | None = None,
@@ -86,9 +88,19 @@ def replay_runtime(scans: int, optimizer=None, seed=0, config: SlamConfig | None
 def replay_run(log_path, relations_path=None, optimizer: str | None = None, odometry=True,
                out_dir=None, limit=None, seed=0, config: SlamConfig | None = None,
                label="replay", schedule: str = "lockstep", before_scan=None, localize=None,
-               resume=None, start: int = 0):
+               resume=None, start: int = 0, watch=None):
     """:func:`replay`, returning ``(metrics, runtime)``; ``before_scan(k, runtime)`` is called
     before scan ``k`` is processed (benchmarks use it to follow the run)."""
+    try:
+        return _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, seed,
+                           config, label, schedule, before_scan, localize, resume, start, watch)
+    finally:
+        if watch is not None:
+            watch.close()
+
+
+def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, seed, config,
+                label, schedule, before_scan, localize, resume, start, watch):
     log = read_carmen(log_path)
     relations = read_relations(relations_path) if relations_path else None
     lasers = log.lasers[start : start + limit if limit else None]
@@ -106,8 +118,11 @@ def replay_run(log_path, relations_path=None, optimizer: str | None = None, odom
         if before_scan is not None:
             before_scan(k, runtime)
         t0 = time.perf_counter()
-        runtime.process(scan, record.odometry if odometry else None, record.timestamp)
+        result = runtime.process(scan, record.odometry if odometry else None, record.timestamp)
         latencies[k] = time.perf_counter() - t0
+        if watch is not None and result is not None:
+            watch.tick(runtime, frame_of(runtime, result, scan.points, record.timestamp,
+                                         latencies[k]))
         progress.update(note=runtime.status if runtime.localizing else
                         f"nodes {slam.n_nodes} loops {slam.loops_closed}")
     runtime.drain()  # deferred loop searches finish, as on the robot's next ticks

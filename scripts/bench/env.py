@@ -14,6 +14,7 @@ import time
 import gymnasium as gym
 
 from runtime.writers import write_json_atomic
+from scripts.plots import bars, require_matplotlib
 
 TARGETS = {"steps_per_s_without_slam": 5000, "steps_per_s_with_slam": 200}
 
@@ -87,7 +88,10 @@ def _vector_steps_per_second(mode: str, slam: bool, steps: int, world: str) -> f
 
 
 def bench_env(world: str = "office", steps: int = 5000, slam_steps: int = 1000,
-              json_path=None, echo=print) -> dict:
+              json_path=None, echo=print, plots=None) -> dict:
+    """``plots``: a folder for the steps/s bars (PNG)."""
+    if plots:
+        require_matplotlib()
     echo(f"SwarmSlam-v0 on {world}, RPLidar A1 preset (360 beams), seeded random actions")
     r = {"world": world, "beams": 360}
     r["steps_per_s_without_slam"] = _steps_per_second(False, steps, world)
@@ -108,6 +112,16 @@ def bench_env(world: str = "office", steps: int = 5000, slam_steps: int = 1000,
                  f"{r['vector'][key]:8.0f} env-steps/s")
     r["targets"] = TARGETS
     r["met"] = {k: r[k] >= v for k, v in TARGETS.items()}
+    if plots:
+        v = r["vector"]
+        bars(plots, "env", f"SwarmSlam-v0 on {world}", "environment steps/s (log)",
+             {"one env": {"without SLAM": r["steps_per_s_without_slam"],
+                          "with SLAM": r["steps_per_s_with_slam"]},
+              "2 envs, sync": {"without SLAM": v["sync_no_slam"], "with SLAM": v["sync_slam"]},
+              "2 envs, async": {"without SLAM": v["async_no_slam"],
+                                "with SLAM": v["async_slam"]}},
+             log=True, targets={"without SLAM": TARGETS["steps_per_s_without_slam"],
+                                "with SLAM": TARGETS["steps_per_s_with_slam"]})
     if json_path:
         write_json_atomic(json_path, r)
     return r

@@ -26,6 +26,7 @@ from runtime.config import SlamConfig, override
 from runtime.pose import between
 from runtime.pose_graph import LOOP
 from runtime.writers import write_json_atomic
+from scripts.plots import bars, require_matplotlib
 from scripts.replay import replay_run
 from scripts.simlog import write_simlog
 from scripts.tum import read_tum
@@ -195,7 +196,10 @@ def run_case(case: Case, work: Path, config: SlamConfig | None = None, floor: bo
 
 
 def bench_generalization(cases=CASES, json_path=None, work=None, config=None, floor=True,
-                         echo=print) -> dict:
+                         echo=print, plots=None) -> dict:
+    """``plots``: a folder for the errors and loop scores per case (PNG)."""
+    if plots:
+        require_matplotlib()
     results = {"benchmark": "generalization", "cases": []}
     echo(format_header(floor))
     with tempfile.TemporaryDirectory(prefix="swarmslam-gen-") as tmp:
@@ -211,6 +215,16 @@ def bench_generalization(cases=CASES, json_path=None, work=None, config=None, fl
         "mean_ate_rmse_m": float(np.mean([r["ate_rmse_m"] for r in runs])),
     }
     echo(format_summary(results["summary"]))
+    if plots:
+        names = [r["case"] for r in runs]
+        errors = {"eT (m)": dict(zip(names, (r["eT"] for r in runs))),
+                  "ATE RMSE (m)": dict(zip(names, (r["ate_rmse_m"] for r in runs)))}
+        if floor:
+            errors["eT, perfect matching (m)"] = dict(zip(names, (r["floor_eT"] for r in runs)))
+        bars(plots, "generalization-errors", "simulated surveys", "m (log)", errors, log=True)
+        bars(plots, "generalization-loops", "loop closures against the true poses", "share",
+             {"precision": dict(zip(names, (r["loop_precision"] for r in runs))),
+              "recall": dict(zip(names, (r["loop_recall"] for r in runs)))})
     if json_path:
         write_json_atomic(json_path, results)
     return results

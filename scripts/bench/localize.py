@@ -27,6 +27,7 @@ from runtime.writers import write_json_atomic
 from scripts.bench.slam import LOGS
 from scripts.carmen import read_carmen
 from scripts.datasets import require
+from scripts.plots import bars, latency_histograms, require_matplotlib
 from scripts.progress import Progress
 from scripts.replay import replay, robot_frame_scan
 
@@ -101,6 +102,7 @@ def bench_log(name: str, log_path: Path, session: Path, queries: int, seed: int,
         "ms_median": float(np.median(ms)), "ms_p99": float(np.percentile(ms, 99)),
         "ms_median_confirmed": float(np.median(ms_c)),
         "ms_p99_confirmed": float(np.percentile(ms_c, 99)),
+        "ms_per_query": [round(float(v), 3) for v in ms],
         **tracking(name, lasers, session, truth, echo),
     }
 
@@ -158,7 +160,10 @@ def sha256_file(path) -> str:
 
 
 def bench_localize(data_dir: Path, logs=tuple(LOGS), queries: int = 200, seed: int = 0,
-                   maps_dir=None, json_path=None, echo=print) -> dict:
+                   maps_dir=None, json_path=None, echo=print, plots=None) -> dict:
+    """``plots``: a folder for the outcomes per log and the query times (PNG)."""
+    if plots:
+        require_matplotlib()
     maps_dir = Path(maps_dir or "swarmslam-maps")
     results = {"benchmark": "localize", "seed": seed, "queries": queries,
                "success": {"distance_m": SUCCESS_DISTANCE, "angle_deg": 5.0}, "logs": []}
@@ -176,4 +181,18 @@ def bench_localize(data_dir: Path, logs=tuple(LOGS), queries: int = 200, seed: i
              f"{row['tracking_deadline_misses']} misses, map unchanged: {row['map_unchanged']}")
         if json_path:
             write_json_atomic(json_path, results)
+    if plots:
+        plot_localize(plots, results["logs"])
     return results
+
+
+def plot_localize(out_dir, rows) -> None:
+    """Outcome shares per log (one scan and confirmed) and the time per one-scan query."""
+    shares = {what: {f"{r['dataset']}\n{part or 'one scan'}":
+                     r[f"{what}_rate{'_confirmed' if part else ''}"]
+                     for r in rows for part in ("", "confirmed")}
+              for what in ("success", "ambiguous", "wrong")}
+    bars(out_dir, "localize-outcomes", "global relocalization, no prior", "share of queries",
+         shares, stacked=True)
+    latency_histograms(out_dir, {r["dataset"]: r["ms_per_query"] for r in rows}, 100.0,
+                       "localize-ms", "target median", "ms per one-scan query", "queries")

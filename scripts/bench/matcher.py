@@ -24,6 +24,7 @@ from scripts.carmen import read_carmen
 from scripts.datasets import require
 from scripts.icp import icp
 from scripts.metrics import is_failure, pair_errors, relative_errors
+from scripts.plots import matcher_errors, require_matplotlib
 from scripts.progress import Progress
 
 DATASETS = {"intel": "intel-corrected.log.gz", "aces": "aces-corrected.log.gz"}
@@ -109,7 +110,11 @@ def run_icp(scans, truth, label: str):
 
 
 def bench_matcher(data_dir: Path, optimizers=("abc", "pso", "fa"), datasets=tuple(DATASETS),
-                  paper=True, limit=None, seed=0, json_path=None, echo=print) -> dict:
+                  paper=True, limit=None, seed=0, json_path=None, echo=print,
+                  plots=None) -> dict:
+    """``plots``: a folder for each log's error distributions per matcher (PNG)."""
+    if plots:
+        require_matplotlib()
     results = {
         "benchmark": "matcher",
         "machine": {"python": platform.python_version(), "cpu": platform.processor(),
@@ -122,16 +127,20 @@ def bench_matcher(data_dir: Path, optimizers=("abc", "pso", "fa"), datasets=tupl
         scans, truth = load_pairs(Path(data_dir) / "corrected" / DATASETS[name], limit)
         eq24_idx = np.sort(np.random.default_rng(0).choice(len(truth), min(EQ24_PAIRS, len(truth)),
                                                            replace=False))
-        rows = {}
+        rows, errors = {}, {}
         variants = [(opt, MatcherConfig.for_optimizer(opt)) for opt in optimizers]
         if paper:
             variants += [(f"{opt}-paper", MatcherConfig.paper(opt)) for opt in optimizers]
         for label, config in variants:
             est, times, extra = run_swarm(scans, truth, config, seed, f"{name} {label}")
             rows[label] = summarise(est, truth, times, eq24_idx, extra)
+            errors[label] = relative_errors(est, truth)
         est, times, extra = run_icp(scans, truth, f"{name} icp")
         rows["icp"] = summarise(est, truth, times, eq24_idx, extra)
+        errors["icp"] = relative_errors(est, truth)
         results["datasets"][name] = rows
+        if plots:
+            matcher_errors(plots, name, errors)
         echo(format_table(name, rows))
     if json_path:
         write_json_atomic(json_path, results)

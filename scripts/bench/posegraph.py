@@ -13,6 +13,7 @@ from runtime.graph_optimizer import GaussNewton
 from runtime.writers import write_json_atomic
 from scripts.datasets import require
 from scripts.g2o import read_g2o
+from scripts.plots import bars, require_matplotlib
 
 GRAPHS = {
     "INTEL": ("input_INTEL_g2o.g2o", 215.830, 12.0),
@@ -20,7 +21,11 @@ GRAPHS = {
 }
 
 
-def bench_posegraph(data_dir: Path, repeats: int = 5, json_path=None, echo=print) -> dict:
+def bench_posegraph(data_dir: Path, repeats: int = 5, json_path=None, echo=print,
+                    plots=None) -> dict:
+    """``plots``: a folder for the time per graph beside g2o's (PNG)."""
+    if plots:
+        require_matplotlib()
     results = {"benchmark": "posegraph", "graphs": {}}
     lines = [f"{'graph':<6} {'chi2':>11} {'g2o chi2':>9} {'ms median':>9} {'g2o ms':>7} "
              f"{'ratio':>6} {'iters':>5} {'first ms':>8}"]
@@ -42,6 +47,11 @@ def bench_posegraph(data_dir: Path, repeats: int = 5, json_path=None, echo=print
         lines.append(f"{name:<6} {report.chi2:11.3f} {chi2_ref:9.3f} {ms:9.1f} {ms_ref:7.1f} "
                      f"{ms / ms_ref:6.2f} {report.iterations:5d} {times[0]:8.1f}")
     echo("\n".join(lines))
+    if plots:
+        g = results["graphs"]
+        bars(plots, "posegraph", "Gauss-Newton to convergence", "ms (log)",
+             {"ours (median)": {k: v["ms_median"] for k, v in g.items()},
+              "g2o (published)": {k: v["g2o_ms"] for k, v in g.items()}}, log=True)
     if json_path:
         write_json_atomic(json_path, results)
     return results

@@ -17,6 +17,7 @@ Targets (issue 6): 0 misses, p99 ≤ 20 ms, RSS growth ≤ 1 MB, 0 traced bytes 
 from __future__ import annotations
 
 import gc
+import tempfile
 import threading
 import time
 import tracemalloc
@@ -32,9 +33,11 @@ from runtime.writers import write_json_atomic
 from scripts.carmen import read_carmen
 from scripts.datasets import require
 from scripts.metrics import kummerle
+from scripts.plots import latency_histograms, lines_plot, require_matplotlib
 from scripts.progress import Progress
 from scripts.relations import read_relations
 from scripts.replay import replay, robot_frame_scan
+from scripts.run_view import RunWatch, frame_of
 
 WARM_UP = 1000  # scans before RSS and traced memory are taken as the baseline
 
@@ -99,7 +102,7 @@ def max_speed(scans, relations, config, echo) -> dict:
         "runtime": report,
     }
     out.update(kummerle(stamps, poses, relations))
-    return out
+    return out, 1e3 * latency
 
 
 def traced(scans, config, ticks) -> dict:
@@ -148,8 +151,7 @@ def recorded_rate(scans, config, minutes: float, echo) -> dict:
         stop.set()
 
     def on_tick(rt, result):
-        latencies.append(rt.stats.latency[(rt.stats.scans - 1) % rt.stats.latency.shape[0]]
-                         if result is not None else 0.0)
+        latencies.append(rt.stats.last_latency if result is not None else 0.0)
 
     producer = threading.Thread(target=produce, daemon=True)
     producer.start()
@@ -167,12 +169,59 @@ def recorded_rate(scans, config, minutes: float, echo) -> dict:
         "latency_ms_median": float(1e3 * np.median(lat)),
         "latency_ms_p99": float(1e3 * np.percentile(lat, 99)),
         "latency_ms_max": float(1e3 * lat.max()),
-    }
+    }, 1e3 * lat
+
+
+def view_overhead(scans, config, n: int) -> tuple[dict, dict]:
+    """Tick latency with a view attached (a rerun recording and an MCAP file, as ``--record``
+    and ``--mcap`` write them) against none: two runtimes ticked alternately on the same
+    scans, so both see the same machine at the same moments."""
+    scans = scans[:n]
+    plain, watched = SlamRuntime(config), SlamRuntime(config)
+    plain.warm_up()
+    watched.warm_up()
+    off, on, view = np.zeros(len(scans)), np.zeros(len(scans)), np.zeros(len(scans))
+    clock = time.perf_counter
+    progress = Progress(len(scans), "runtime with and without a view")
+    with tempfile.TemporaryDirectory(prefix="swarmslam-view-") as tmp:
+        watch = RunWatch(record=Path(tmp) / "run.rrd", mcap=Path(tmp) / "run.mcap")
+        try:
+            for k, (pts, count, odometry, stamp) in enumerate(scans):
+                for runtime, latency in ((plain, off), (watched, on)):
+                    runtime.inbox.put_points(pts, count, stamp, odometry)
+                    t0 = clock()
+                    result = runtime.tick()
+                    latency[k] = clock() - t0
+                if result is not None:
+                    t0 = clock()
+                    watch.tick(watched, frame_of(watched, result, pts[:count], stamp, on[k]))
+                    view[k] = clock() - t0
+                progress.update()
+        finally:
+            watch.close()
+            progress.close()
+        sizes = {p.name: p.stat().st_size for p in Path(tmp).iterdir()}
+    p99_off, p99_on = (float(1e3 * np.percentile(v, 99)) for v in (off, on))
+    return {
+        "scans": len(scans),
+        "latency_ms_p99_without_view": p99_off, "latency_ms_p99_with_view": p99_on,
+        "p99_ratio": p99_on / p99_off,
+        "latency_ms_median_without_view": float(1e3 * np.median(off)),
+        "latency_ms_median_with_view": float(1e3 * np.median(on)),
+        "view_ms_median": float(1e3 * np.median(view)), "view_ms_p99":
+            float(1e3 * np.percentile(view, 99)),
+        "recording_bytes": sizes,
+    }, {"without a view": 1e3 * off, "with a view": 1e3 * on}
 
 
 def bench_runtime(data_dir: Path, optimizer="abc", realtime_minutes=2.0, traced_ticks=6000,
-                  limit=None, json_path=None, echo=print, config=None) -> dict:
-    """``config``: the SLAM's configuration (default: the defaults), run budgeted."""
+                  limit=None, json_path=None, echo=print, config=None, plots=None,
+                  view_scans: int = 3000) -> dict:
+    """``config``: the SLAM's configuration (default: the defaults), run budgeted.
+    ``view_scans``: scans ticked with and without a view (0: skip); ``plots``: a folder for
+    the latency histograms (PNG)."""
+    if plots:
+        require_matplotlib()
     log_path = require(Path(data_dir) / "radish" / "intel.clf.gz")
     rel_path = require(Path(data_dir) / "radish" / "intel.relations")
     log = read_carmen(log_path)
@@ -186,15 +235,24 @@ def bench_runtime(data_dir: Path, optimizer="abc", realtime_minutes=2.0, traced_
     rc = config.runtime
     result = {"benchmark": "runtime", "log": str(log_path), "optimizer": optimizer,
               "runtime_config": {"rate_hz": rc.rate_hz, "tick_budget_s": rc.tick_budget}}
-    result["max_speed"] = max_speed(scans, relations, config, echo)
+    result["max_speed"], latency = max_speed(scans, relations, config, echo)
+    latencies = {"max speed": latency}
     unsliced = replay(log_path, rel_path, optimizer, True, None, limit, label="unsliced",
                       config=config)
     result["unsliced"] = {k: unsliced[k] for k in ("eT", "eT_std", "eR_deg", "eR_std",
                                                    "loops_accepted", "latency_ms_p99")}
     result["traced"] = traced(scans, config, traced_ticks)
     if realtime_minutes > 0:
-        result["recorded_rate"] = recorded_rate(scans, config, realtime_minutes, echo)
+        result["recorded_rate"], latencies["recorded rate"] = recorded_rate(
+            scans, config, realtime_minutes, echo)
+    if view_scans > 0:
+        result["view"], by_view = view_overhead(scans, config, view_scans)
     echo(format_runtime(result))
+    if plots:
+        budget = 1e3 * rc.tick_budget
+        latency_histograms(plots, latencies, budget, "runtime-latency")
+        if view_scans > 0:
+            latency_histograms(plots, by_view, budget, "runtime-view")
     if json_path:
         write_json_atomic(json_path, result)
     return result
@@ -227,11 +285,20 @@ def format_runtime(r) -> str:
             f"{q['scans_offered']} scans, {q['stale_scans']} stale, {q['deadline_misses']} "
             f"misses, latency ms median {q['latency_ms_median']:.2f} p99 "
             f"{q['latency_ms_p99']:.2f} max {q['latency_ms_max']:.1f}")
+    if "view" in r:
+        v = r["view"]
+        lines.append(f"  with a view (rerun + MCAP recording), {v['scans']} scans: p99 "
+                     f"{v['latency_ms_p99_with_view']:.2f} ms vs {v['latency_ms_p99_without_view']:.2f}"
+                     f" without ({v['p99_ratio']:.2f}x; target <= 1.10); the view's own work "
+                     f"{v['view_ms_median']:.2f} ms median, {v['view_ms_p99']:.2f} ms p99 per tick")
     return "\n".join(lines)
 
 
-def bench_soak(minutes: float, json_path=None, echo=print, seed=0) -> dict:
-    """The runtime for ``minutes`` of wall time on simulated scans, back to back."""
+def bench_soak(minutes: float, json_path=None, echo=print, seed=0, plots=None) -> dict:
+    """The runtime for ``minutes`` of wall time on simulated scans, back to back; ``plots``:
+    a folder for the memory samples (PNG)."""
+    if plots:
+        require_matplotlib()
     drive = LoopDrive(seed)
     config = override(SlamConfig(), {"capacity.max_nodes": 2000, "capacity.max_edges": 8000,
                                      "capacity.max_scans": 1_000_000})
@@ -272,6 +339,11 @@ def bench_soak(minutes: float, json_path=None, echo=print, seed=0) -> dict:
          f"{result['rss_mib_growth_after_first_minute']:.2f} MiB, traced "
          f"{result['traced_kib_growth_after_first_minute']:.1f} KiB; p99 "
          f"{report['latency_ms_p99']:.1f} ms; status {report['status']}")
+    if plots:
+        ticks = [x["tick"] for x in samples]
+        lines_plot(plots, "runtime-soak", f"soak, {minutes:g} min", "ticks",
+                   {"RSS (MiB)": (ticks, [x["rss_mib"] for x in samples]),
+                    "traced by tracemalloc (KiB)": (ticks, [x["traced_kib"] for x in samples])})
     if json_path:
         write_json_atomic(json_path, result)
     return result

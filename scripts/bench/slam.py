@@ -11,7 +11,10 @@ import numpy as np
 
 from runtime.writers import write_json_atomic
 from scripts.datasets import require
-from scripts.replay import replay
+from scripts.metrics import LOCAL_GAP, relation_errors
+from scripts.plots import require_matplotlib, slam_errors_over_time, slam_summary
+from scripts.relations import read_relations
+from scripts.replay import replay_run
 
 LOGS = {"intel": ("intel.clf.gz", "intel.relations"), "aces": ("aces.clf.gz", "aces.relations"),
         "clinic": ("fr-clinic.clf.gz", "fr-clinic.relations")}
@@ -37,10 +40,13 @@ SCORED = {"intel": ("",), "aces": ("",), "clinic": ("_local", "_global")}
 
 def bench_slam(data_dir: Path, optimizers=("abc", "pso", "fa"), logs=tuple(LOGS),
                modes=(True, False), limit=None, out_dir=None, json_path=None, echo=print,
-               config=None, seeds=(0, 1, 2)):
+               config=None, seeds=(0, 1, 2), plots=None):
     """``config``: the SLAM's configuration (default: the defaults); each run sets its
     optimizer. Every (log, optimizer, input) runs once per seed; the table gives the mean
-    over seeds and the worst seed."""
+    over seeds and the worst seed. ``plots``: a folder for each run's relation errors over
+    time and each log's summary (PNG)."""
+    if plots:
+        require_matplotlib()
     results = {"benchmark": "slam", "seeds": list(seeds), "runs": [], "summary": []}
     for name in logs:
         log, rel = LOGS[name]
@@ -53,8 +59,10 @@ def bench_slam(data_dir: Path, optimizers=("abc", "pso", "fa"), logs=tuple(LOGS)
                 for seed in seeds:
                     label = f"{name} {optimizer} {'odom' if odometry else 'scans'} seed {seed}"
                     run_out = None if out_dir is None else Path(out_dir) / label.replace(" ", "-")
-                    m = replay(log_path, rel_path, optimizer, odometry, run_out, limit, seed,
-                               label=label, config=config)
+                    m, runtime = replay_run(log_path, rel_path, optimizer, odometry, run_out,
+                                            limit, seed, label=label, config=config)
+                    if plots:
+                        plot_run(plots, label, runtime, read_relations(rel_path))
                     m.update(dataset=name, seed=seed)
                     results["runs"].append(m)
                     runs.append(m)
@@ -62,9 +70,21 @@ def bench_slam(data_dir: Path, optimizers=("abc", "pso", "fa"), logs=tuple(LOGS)
                 results["summary"].append(summary)
                 rows.append(summary)
         echo(format_table(name, rows))
+    if plots:
+        slam_summary(plots, results["summary"], PUBLISHED)
+        echo(f"plots in {plots}")
     if json_path:
         write_json_atomic(json_path, results)
     return results
+
+
+def plot_run(out_dir, label, runtime, relations) -> None:
+    """The run's relation errors against the time of each relation's first scan."""
+    stamps, poses = runtime.trajectory()
+    ok, e_t, e_r = relation_errors(stamps, poses, relations)
+    t1, t2 = relations.t1[ok], relations.t2[ok]
+    slam_errors_over_time(out_dir, label, t1 - stamps[0], e_t, e_r,
+                          np.abs(t2 - t1) < LOCAL_GAP)
 
 
 def summarise(name, optimizer, odometry, runs) -> dict:

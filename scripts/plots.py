@@ -1,0 +1,183 @@
+"""The benchmarks' figures (``swarmslam bench ... --plots DIR``), as PNG files written
+atomically. matplotlib is an optional extra (``pip install -e ".[plots]"``); asking for plots
+without it is a clear error before the benchmark runs."""
+
+from __future__ import annotations
+
+import importlib.util
+import io
+from pathlib import Path
+
+import numpy as np
+
+from runtime.writers import write_bytes_atomic
+
+
+def require_matplotlib() -> None:
+    if importlib.util.find_spec("matplotlib") is None:
+        raise ValueError("--plots needs matplotlib: pip install -e \".[plots]\"")
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")  # files only: no display needed
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save(fig, path) -> Path:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    _pyplot().close(fig)
+    return write_bytes_atomic(path, buf.getvalue())
+
+
+def _slug(text: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_." else "-" for c in text)
+
+
+# ---------------------------------------------------------------------- bench slam
+def slam_errors_over_time(out_dir, label: str, t, e_t, e_r_deg, is_local) -> Path:
+    """Where a run's error comes from: each relation's translation and rotation error at the
+    time of its first scan (from the log's start), local and global relations apart."""
+    plt = _pyplot()
+    fig, (a, b) = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
+    t, e_t, e_r_deg, is_local = map(np.asarray, (t, e_t, e_r_deg, is_local))
+    for mask, name, color in ((is_local, "local", "tab:blue"), (~is_local, "global", "tab:red")):
+        if np.any(mask):
+            a.plot(t[mask], e_t[mask], ".", ms=3, color=color, label=f"{name} ({mask.sum()})")
+            b.plot(t[mask], e_r_deg[mask], ".", ms=3, color=color)
+    a.set_yscale("log")
+    b.set_yscale("log")
+    a.set_ylabel("translation error (m)")
+    b.set_ylabel("rotation error (°)")
+    b.set_xlabel("time of the relation's first scan (s from the log's start)")
+    a.set_title(f"{label}: relation errors (mean {e_t.mean():.4f} m, {e_r_deg.mean():.3f}°)")
+    a.legend(loc="upper left", fontsize=8)
+    for ax in (a, b):
+        ax.grid(True, which="both", alpha=0.3)
+    return save(fig, Path(out_dir) / f"slam-{_slug(label)}.png")
+
+
+def slam_summary(out_dir, summary, published) -> list[Path]:
+    """Per log: mean eT over seeds (bar) and worst seed (tick) per optimizer and input,
+    beside the published systems (lines)."""
+    plt = _pyplot()
+    paths = []
+    for name in dict.fromkeys(s["dataset"] for s in summary):
+        rows = [s for s in summary if s["dataset"] == name]
+        parts = [k[:-5] for k in rows[0] if k.startswith("eT") and k.endswith("_mean")]
+        fig, axes = plt.subplots(1, len(parts), figsize=(4.5 * len(parts), 3.6), squeeze=False)
+        for ax, part in zip(axes[0], parts):
+            labels = [f"{s['optimizer']}\n{'odom' if s['odometry'] else 'scans'}" for s in rows]
+            means = [s.get(f"{part}_mean", np.nan) for s in rows]
+            worst = [s.get(f"{part}_worst", np.nan) for s in rows]
+            x = np.arange(len(rows))
+            ax.bar(x, means, color="tab:blue", label="mean over seeds")
+            ax.plot(x, worst, "v", color="black", label="worst seed")
+            which = part[2:].strip("_")  # "", "local", "global"
+            for system, fig_ in published.get(name, {}).items():
+                if not which or which in system:
+                    ax.axhline(fig_[0], ls="--", lw=1, color="tab:gray")
+                    ax.annotate(system, (x[-1] + 0.4, fig_[0]), fontsize=7, va="bottom",
+                                ha="right")
+            ax.set_xticks(x, labels, fontsize=8)
+            ax.set_yscale("log")
+            ax.set_ylabel(f"{part} (m)")
+            ax.set_title(f"{name} {which}".strip())
+            ax.legend(fontsize=7, loc="upper left")
+        paths.append(save(fig, Path(out_dir) / f"slam-summary-{name}.png"))
+    return paths
+
+
+# ---------------------------------------------------------------------- bench matcher
+def matcher_errors(out_dir, dataset: str, errors: dict) -> Path:
+    """Distribution of each matcher's translation and rotation errors on one log's pairs
+    (``errors``: variant → (e_t m, e_r rad)), ICP beside the swarms."""
+    plt = _pyplot()
+    names = list(errors)
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.8))
+    floor = 1e-5  # a log scale shows exact matches at this floor
+    a.boxplot([np.maximum(errors[n][0], floor) for n in names], showfliers=True)
+    b.boxplot([np.maximum(np.degrees(errors[n][1]), floor) for n in names], showfliers=True)
+    for ax, what in ((a, "translation error (m)"), (b, "rotation error (°)")):
+        ax.set_yscale("log")
+        ax.set_xticks(range(1, len(names) + 1), names, rotation=30, fontsize=8)
+        ax.set_ylabel(what)
+        ax.grid(True, which="both", alpha=0.3)
+    fig.suptitle(f"scan matching on {dataset}: {len(errors[names[0]][0])} keyframe pairs, "
+                 "no initial guess")
+    return save(fig, Path(out_dir) / f"matcher-{dataset}.png")
+
+
+# ---------------------------------------------------------------------- bench runtime
+def latency_histograms(out_dir, latencies_ms: dict, budget_ms: float, name: str,
+                       budget_label: str = "tick budget", xlabel: str = "tick latency (ms)",
+                       ylabel: str = "ticks") -> Path:
+    """Latency histograms (``latencies_ms``: pass → array), the budget marked."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(8, 3.8))
+    values = [np.asarray(v, float) for v in latencies_ms.values()]
+    hi = max(float(np.max(v)) for v in values if len(v))
+    bins = np.geomspace(max(min(float(np.min(v)) for v in values if len(v)), 1e-3), hi, 80)
+    for (label, _), v in zip(latencies_ms.items(), values):
+        ax.hist(v, bins=bins, histtype="step", lw=1.5,
+                label=f"{label}: p99 {np.percentile(v, 99):.2f} ms")
+    ax.axvline(budget_ms, color="black", ls="--", lw=1, label=f"{budget_label} {budget_ms:g} ms")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.legend(fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+    return save(fig, Path(out_dir) / f"{name}.png")
+
+
+# ---------------------------------------------------------------------- bars
+def bars(out_dir, name: str, title: str, ylabel: str, groups: dict, log=False,
+         targets: dict | None = None, stacked=False) -> Path:
+    """A bar chart: ``groups`` label → value (or series name → {label → value} for grouped,
+    or ``stacked``, bars); ``targets`` label → a target line over that bar."""
+    plt = _pyplot()
+    series = groups if all(isinstance(v, dict) for v in groups.values()) else {"": groups}
+    labels = list(dict.fromkeys(k for s in series.values() for k in s))
+    fig, ax = plt.subplots(figsize=(max(4.0, 1.1 * len(labels) * max(len(series), 1) ** 0.5
+                                        + 2), 3.6))
+    x = np.arange(len(labels))
+    width = 0.6 if stacked else 0.8 / len(series)
+    bottom = np.zeros(len(labels))
+    for i, (sname, values) in enumerate(series.items()):
+        v = np.array([values.get(k, 0.0 if stacked else np.nan) for k in labels], float)
+        if stacked:
+            ax.bar(x, v, width, bottom=bottom, label=sname or None)
+            bottom += v
+        else:
+            ax.bar(x + (i - (len(series) - 1) / 2) * width, v, width, label=sname or None)
+    for k, v in (targets or {}).items():
+        j = labels.index(k)
+        ax.plot([j - 0.45, j + 0.45], [v, v], color="black", ls="--", lw=1)
+    ax.set_xticks(x, labels, rotation=20 if len(labels) > 4 else 0, fontsize=8)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    if log:
+        ax.set_yscale("log")
+    if len(series) > 1:
+        ax.legend(fontsize=8)
+    ax.grid(True, axis="y", alpha=0.3)
+    return save(fig, Path(out_dir) / f"{name}.png")
+
+
+def lines_plot(out_dir, name: str, title: str, xlabel: str, series: dict) -> Path:
+    """One panel per series (``series``: label → (x, y)), sharing the x axis."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(len(series), 1, figsize=(8, 2.4 * len(series)), sharex=True,
+                             squeeze=False)
+    for ax, (label, (x, y)) in zip(axes[:, 0], series.items()):
+        ax.plot(x, y, ".-")
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+    axes[0, 0].set_title(title)
+    axes[-1, 0].set_xlabel(xlabel)
+    return save(fig, Path(out_dir) / f"{name}.png")

@@ -1,0 +1,111 @@
+"""Watching a run as it happens: ``--view`` and ``--record FILE.rrd`` (rerun) and ``--mcap FILE``
+(Foxglove), shared by ``demo``, ``replay`` and ``lidar``.
+
+The loop that drives the SLAM hands each tick's :class:`Frame` to :meth:`RunWatch.tick` *after*
+the tick: nothing here runs inside the runtime's budget or changes the SLAM's state, so results
+are identical with and without it. The map is redrawn a few nodes per tick
+(:class:`scripts.map_painter.MapPainter`) and sent when a redraw completes.
+
+rerun, mcap: optional extras (``pip install -e ".[view]"``); asking for a view without them is a
+clear error before the run starts.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from dataclasses import dataclass
+
+import numpy as np
+
+from scripts.map_painter import MapPainter
+
+
+@dataclass
+class Frame:
+    """One tick as a viewer sees it."""
+
+    stamp: float  # s, the scan's time
+    pose: np.ndarray  # the SLAM's pose of the scan (map frame); NaN while not localized
+    points: np.ndarray  # the scan, robot frame, (n, 2)
+    latency_ms: float  # the tick's time
+    node_added: bool = False
+    loop_closed: bool = False
+    error: float = float("nan")  # λ of the front end's match
+    rejection_threshold: float = float("nan")
+    evaluations: int = 0  # the swarm's objective evaluations this tick
+    truth: np.ndarray | None = None  # the true pose, where known (simulator)
+
+
+def frame_of(runtime, result, points, stamp: float, latency_s: float, truth=None) -> Frame:
+    """The :class:`Frame` of a :class:`runtime.fixed_rate.SlamRuntime` tick that gave
+    ``result`` (a :class:`runtime.step_result.StepResult`) for the scan ``points``."""
+    slam = runtime.slam
+    front_end = getattr(slam, "front_end", None)  # mapping; a localizer has none
+    threshold = front_end.matcher.threshold.rejection_threshold if front_end else float("nan")
+    return Frame(
+        stamp=float(stamp), pose=np.array(result.pose, np.float64), points=points,
+        latency_ms=1e3 * latency_s, node_added=bool(result.node_added),
+        loop_closed=bool(result.loop_closed), error=float(result.error),
+        rejection_threshold=float(threshold),
+        evaluations=int(front_end.evaluations) if front_end else 0,
+        truth=None if truth is None else np.asarray(truth, np.float64))
+
+
+def require_extra(module: str, option: str) -> None:
+    if importlib.util.find_spec(module) is None:
+        raise ValueError(f"{option} needs the '{module}' package: pip install -e \".[view]\"")
+
+
+class RunWatch:
+    """The viewers of one run (any of: a live rerun view, an .rrd recording, an MCAP file),
+    opened at the first tick, when the runtime's configuration is known."""
+
+    def __init__(self, view: bool = False, record=None, mcap=None, echo=print,
+                 nodes_per_tick: int = 40):
+        if view or record:
+            require_extra("rerun", "--view/--record")
+        if mcap:
+            require_extra("mcap", "--mcap")
+        self.view, self.record, self.mcap, self.echo = view, record, mcap, echo
+        self.nodes_per_tick = nodes_per_tick
+        self.sinks = None
+        self.painter = None
+        self.ticks = 0
+
+    @classmethod
+    def from_args(cls, args, echo=print) -> RunWatch | None:
+        """From a command's ``--view``/``--record``/``--mcap`` options; None when none is set."""
+        view, record = getattr(args, "view", False), getattr(args, "record", None)
+        mcap = getattr(args, "mcap", None)
+        if not (view or record or mcap):
+            return None
+        return cls(view=view, record=record, mcap=mcap, echo=echo)
+
+    def _open(self, config) -> None:
+        self.sinks = []
+        if self.view or self.record:
+            from scripts.rerun_view import RerunView  # optional extra, imported only when asked
+
+            self.sinks.append(RerunView(view=self.view, record=self.record, echo=self.echo))
+        if self.mcap:
+            from scripts.mcap_recording import McapRecording
+
+            self.sinks.append(McapRecording(self.mcap, config.sensor.max_points))
+        self.painter = MapPainter(config.map, self.nodes_per_tick)
+
+    def tick(self, runtime, frame: Frame) -> None:
+        """After a tick: the frame to every viewer, and the map and graph when redrawn."""
+        if self.sinks is None:
+            self._open(runtime.config)
+        self.ticks += 1
+        grid = self.painter.paint(runtime.slam)
+        for sink in self.sinks:
+            sink.frame(self.ticks, frame)
+            if grid is not None:
+                sink.map(self.ticks, frame.stamp, grid, runtime.slam)
+
+    def close(self) -> None:
+        """Finish the recordings (also after an error: what was recorded is kept)."""
+        for sink in self.sinks or ():
+            sink.close()
+        self.sinks = []
