@@ -421,7 +421,7 @@ def build_parser() -> argparse.ArgumentParser:
     rt.add_argument("--traced-ticks", type=int, default=6000,
                     help="ticks measured under tracemalloc after warm-up")
     rt.add_argument("--limit", type=int, help="only the first N scans")
-    rt.add_argument("--view-scans", type=int, default=3000,
+    rt.add_argument("--view-scans", type=int, default=4000,
                     help="scans ticked with and without a recording view attached (0: skip)")
     rt.add_argument("--soak", type=float, metavar="MINUTES",
                     help="instead: run this long on simulated scans, sampling memory")

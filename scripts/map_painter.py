@@ -36,6 +36,11 @@ class MapPainter:
         self._count = 0  # nodes the pass draws
         self._version = None  # of the graph the last pass began on
 
+    @property
+    def busy(self) -> bool:
+        """A pass is under way."""
+        return self._grid is not None
+
     def paint(self, slam) -> OccupancyGrid | None:
         """Draw the next few node scans; the finished grid when a pass completes, else None."""
         poses, nodes, n, version = map_nodes(slam)

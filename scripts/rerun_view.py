@@ -108,6 +108,13 @@ class RerunView:
             format=rr.components.ImageFormat(width=w, height=h, color_model="L",
                                              channel_datatype="U8"),
             cell_size=grid.resolution, translation=[grid.origin[0], grid.origin[1], -0.01]))
+        self.trajectory(tick, stamp, slam)
+        self._graph(slam)
+
+    def trajectory(self, tick: int, stamp: float, slam) -> None:
+        """The estimated path (as optimised so far) and the true one."""
+        rec = self.rec
+        self._time(tick, stamp)
         _, poses = slam.trajectory()
         poses = poses[np.all(np.isfinite(poses), axis=1)]
         if len(poses) > 1:
@@ -116,7 +123,6 @@ class RerunView:
         if len(self.truth) > 1:
             rec.log("world/truth", rr.LineStrips3D([_xyz(np.array(self.truth))], radii=0.02,
                                                    colors=[40, 170, 60]))
-        self._graph(slam)
 
     def _graph(self, slam) -> None:
         node_poses, _, n, _ = map_nodes(slam)

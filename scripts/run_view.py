@@ -61,13 +61,17 @@ class RunWatch:
     opened at the first tick, when the runtime's configuration is known."""
 
     def __init__(self, view: bool = False, record=None, mcap=None, echo=print,
-                 nodes_per_tick: int = 40):
+                 nodes_per_tick: int = 40, refresh_seconds: float = 2.0):
+        """``nodes_per_tick``: node scans drawn into the next map per tick;
+        ``refresh_seconds``: of scan time between map redraws (and paths), which bounds a
+        recording's size."""
         if view or record:
             require_extra("rerun", "--view/--record")
         if mcap:
             require_extra("mcap", "--mcap")
         self.view, self.record, self.mcap, self.echo = view, record, mcap, echo
-        self.nodes_per_tick = nodes_per_tick
+        self.nodes_per_tick, self.refresh_seconds = nodes_per_tick, refresh_seconds
+        self._refreshed = -np.inf  # scan time of the last refresh
         self.sinks = None
         self.painter = None
         self.ticks = 0
@@ -98,11 +102,18 @@ class RunWatch:
         if self.sinks is None:
             self._open(runtime.config)
         self.ticks += 1
-        grid = self.painter.paint(runtime.slam)
+        due = frame.stamp - self._refreshed >= self.refresh_seconds
+        grid = None
+        if due or self.painter.busy:
+            grid = self.painter.paint(runtime.slam)  # a new pass starts if the graph changed
+            if due:
+                self._refreshed = frame.stamp
         for sink in self.sinks:
             sink.frame(self.ticks, frame)
             if grid is not None:
                 sink.map(self.ticks, frame.stamp, grid, runtime.slam)
+            elif due and hasattr(sink, "trajectory"):  # paths move without a redraw too
+                sink.trajectory(self.ticks, frame.stamp, runtime.slam)
 
     def close(self) -> None:
         """Finish the recordings (also after an error: what was recorded is kept)."""

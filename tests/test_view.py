@@ -6,6 +6,8 @@ import json
 import math
 import os
 import stat
+import subprocess
+import sys
 
 import gymnasium as gym
 import numpy as np
@@ -191,3 +193,17 @@ def test_laser_ranges_bins_by_angle():
     assert ranges[540] == 4.0 and np.count_nonzero(ranges) == 4
     near = laser_ranges(np.array([[2.0, 0.0], [1.0, 0.0]]), 720)  # one bin: the nearer
     assert near[360] == 1.0
+
+
+def test_the_base_install_needs_none_of_the_extras():
+    """The CLI, the demo, replay and every benchmark import without rerun, mcap, matplotlib or
+    moviepy: they are loaded only when a view, a recording or plots are asked for."""
+    code = ("import sys, scripts.cli, scripts.demo, scripts.replay, scripts.live, "
+            "scripts.bench.slam, scripts.bench.runtime, scripts.bench.localize, "
+            "scripts.bench.matcher, scripts.bench.env, scripts.bench.posegraph, "
+            "scripts.bench.generalization; "
+            "print(sorted(m for m in ('rerun', 'mcap', 'matplotlib', 'moviepy') "
+            "if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout
+    assert out.strip() == "[]"

@@ -216,7 +216,7 @@ def view_overhead(scans, config, n: int) -> tuple[dict, dict]:
 
 def bench_runtime(data_dir: Path, optimizer="abc", realtime_minutes=2.0, traced_ticks=6000,
                   limit=None, json_path=None, echo=print, config=None, plots=None,
-                  view_scans: int = 3000) -> dict:
+                  view_scans: int = 4000) -> dict:
     """``config``: the SLAM's configuration (default: the defaults), run budgeted.
     ``view_scans``: scans ticked with and without a view (0: skip); ``plots``: a folder for
     the latency histograms (PNG)."""
