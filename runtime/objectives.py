@@ -109,35 +109,35 @@ def inlier_fraction(field, meta, pts, n, x, y, t, distance, slope, inv_c2):
 
 
 @njit(cache=True, inline="always")
-def _cost(field, meta, pts, n, x, y, t):
-    return scan_to_scan_error(field, meta, pts, n, 1, x, y, t, KERNEL_CAUCHY)
+def _cost_moved(field, meta, pts, n, x, y, t, a, da, b, db):
+    """The summed per-point cost at ``ΔP = (x, y, t)`` with component ``a`` moved by ``da``
+    and component ``b`` (another one, or −1: none) by ``db``."""
+    moved_x = x + da if a == 0 else (x + db if b == 0 else x)
+    moved_y = y + da if a == 1 else (y + db if b == 1 else y)
+    moved_t = t + da if a == 2 else (t + db if b == 2 else t)
+    return scan_to_scan_error(field, meta, pts, n, 1, moved_x, moved_y, moved_t, KERNEL_CAUCHY)
 
 
 @njit(cache=True)
 def cost_hessian(field, meta, pts, n, x, y, t, h_xy, h_t, out):
     """Central-difference Hessian (3 × 3, into ``out``) of the summed per-point cost at
     ``ΔP``: how sharply the match is pinned in each direction. A plain corridor leaves it
-    nearly singular along the corridor (docs/method.md §6.1)."""
-    p0 = (x, y, t)
-    h = (h_xy, h_xy, h_t)
-    f0 = _cost(field, meta, pts, n, x, y, t)
+    nearly singular along the corridor (docs/method.md §6.1). Scalars only: it runs every
+    tick, and nothing here allocates."""
+    f0 = _cost_moved(field, meta, pts, n, x, y, t, -1, 0.0, -1, 0.0)
     for a in range(3):
+        ha = h_t if a == 2 else h_xy
         for b in range(a, 3):
+            hb = h_t if b == 2 else h_xy
             if a == b:
-                up = [p0[0], p0[1], p0[2]]
-                dn = [p0[0], p0[1], p0[2]]
-                up[a] += h[a]
-                dn[a] -= h[a]
-                v = (_cost(field, meta, pts, n, up[0], up[1], up[2]) - 2.0 * f0
-                     + _cost(field, meta, pts, n, dn[0], dn[1], dn[2])) / (h[a] * h[a])
+                v = (_cost_moved(field, meta, pts, n, x, y, t, a, ha, -1, 0.0) - 2.0 * f0
+                     + _cost_moved(field, meta, pts, n, x, y, t, a, -ha, -1, 0.0)) / (ha * ha)
             else:
                 v = 0.0
                 for sa in (-1.0, 1.0):
                     for sb in (-1.0, 1.0):
-                        q = [p0[0], p0[1], p0[2]]
-                        q[a] += sa * h[a]
-                        q[b] += sb * h[b]
-                        v += sa * sb * _cost(field, meta, pts, n, q[0], q[1], q[2])
-                v /= 4.0 * h[a] * h[b]
+                        v += sa * sb * _cost_moved(field, meta, pts, n, x, y, t, a, sa * ha,
+                                                   b, sb * hb)
+                v /= 4.0 * ha * hb
             out[a, b] = v
             out[b, a] = v

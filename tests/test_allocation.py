@@ -76,6 +76,13 @@ NRT_PROBE = textwrap.dedent(
             m.build_reference(ref, r); m.align_into(cur, r, None, out)
         s1 = rtsys.get_allocation_stats()
         per_call[budget] = [(s1.alloc - s0.alloc) / 20, (s1.free - s0.free) / 20]
+    pose, step = np.zeros(3), (0.05, 0.01)
+    m.curvature(cur, r, pose, step)  # the degeneracy test's Hessian, every tick
+    s0 = rtsys.get_allocation_stats()
+    for _ in range(20):
+        m.curvature(cur, r, pose, step)
+    s1 = rtsys.get_allocation_stats()
+    per_call["curvature"] = [(s1.alloc - s0.alloc) / 20, (s1.free - s0.free) / 20]
     print(json.dumps(per_call))
     """
 )
@@ -96,3 +103,6 @@ def test_compiled_code_allocation_does_not_scale_with_work():
     assert small == large, per_call
     assert small[0] == small[1]
     assert small[0] < 64
+    # The match's curvature (front end, every tick): its four array arguments only (the
+    # finite differences once built a small list per probe: 36 more allocations a call).
+    assert per_call["curvature"] == [4.0, 4.0], per_call
