@@ -87,6 +87,14 @@ class OccupancyGrid:
         size = np.ceil((hi - lo) / res).astype(int) + 1
         return cls(int(size[0]), int(size[1]), res, lo)
 
+    @classmethod
+    def covering_nodes(cls, poses, nodes, n_nodes: int, map_config) -> OccupancyGrid:
+        """An empty grid over the first ``n_nodes`` node poses and their stored scans
+        (a :class:`runtime.node_scans.NodeScans`) within ``map_config.max_range``."""
+        m = map_config
+        return cls.covering(nodes.extent_points(poses, n_nodes, m.max_range), m.resolution,
+                            m.margin, m.max_cells)
+
     def integrate(self, pose, points, max_range: float = np.inf) -> int:
         """Add a scan; returns the number of ``region`` cells it observed for the first time."""
         pts = np.asarray(points, dtype=np.float64)

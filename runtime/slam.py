@@ -170,10 +170,9 @@ class GraphSlam:
 
     def global_map(self) -> OccupancyGrid:
         """An occupancy grid covering the node poses and their scans within the map's reach."""
-        m, g = self.config.map, self.graph
-        corners = self.nodes.extent_points(g.poses, g.n_nodes, m.max_range)
-        grid = OccupancyGrid.covering(corners, m.resolution, m.margin, m.max_cells)
-        return self.draw_map(grid)
+        g = self.graph
+        return self.draw_map(OccupancyGrid.covering_nodes(g.poses, self.nodes, g.n_nodes,
+                                                          self.config.map))
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         """Timestamps and optimised poses of every scan recorded."""

@@ -253,6 +253,12 @@ def _config_options(parser, default: str) -> None:
                         f"(default: {default})")
 
 
+def _bench_outputs(parser) -> None:
+    parser.add_argument("--json", help="write results here (atomically)")
+    parser.add_argument("--plots", metavar="DIR",
+                        help="write the figures (PNG) here (extra 'plots')")
+
+
 def _view_options(parser) -> None:
     parser.add_argument("--view", action="store_true",
                         help="watch it live in rerun (extra 'view'; without a display it serves "
@@ -362,8 +368,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--limit", type=int, help="match only the first N pairs per dataset")
     m.add_argument("--no-paper", action="store_true", help="skip the paper-form variants")
     m.add_argument("--seed", type=int, default=0)
-    m.add_argument("--json", help="write results here (atomically)")
-    m.add_argument("--plots", metavar="DIR", help="write the figures (PNG) here (extra 'plots')")
+    _bench_outputs(m)
     m.set_defaults(func=_bench_matcher)
     s = bsub.add_parser("slam", help="SLAM on the raw Intel/ACES3/fr-clinic logs, scored by "
                                      "relations over seeds")
@@ -374,8 +379,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--modes", default="both", choices=["both", "odometry", "scans"])
     s.add_argument("--limit", type=int, help="only the first N scans of each log")
     s.add_argument("--out", help="keep each run's map, trajectory and graph here")
-    s.add_argument("--json", help="write results here (atomically)")
-    s.add_argument("--plots", metavar="DIR", help="write the figures (PNG) here (extra 'plots')")
+    _bench_outputs(s)
     _config_options(s, DEFAULT_PRESET)
     s.set_defaults(func=_bench_slam)
     ge = bsub.add_parser("generalization", help="SLAM on seeded simulated surveys, scored "
@@ -384,8 +388,7 @@ def build_parser() -> argparse.ArgumentParser:
     ge.add_argument("--no-floor", action="store_true",
                     help="skip the perfect-scan-matching floor (halves the time)")
     ge.add_argument("--keep", metavar="DIR", help="keep the generated logs here")
-    ge.add_argument("--json", help="write results here (atomically)")
-    ge.add_argument("--plots", metavar="DIR", help="write the figures (PNG) here (extra 'plots')")
+    _bench_outputs(ge)
     _config_options(ge, DEFAULT_PRESET)
     ge.set_defaults(func=_bench_generalization)
     lo = bsub.add_parser("localize", help="global relocalization in maps of Intel/ACES3/"
@@ -396,21 +399,18 @@ def build_parser() -> argparse.ArgumentParser:
     lo.add_argument("--seed", type=int, default=0, help="seeds which scans are drawn")
     lo.add_argument("--maps", metavar="DIR", help="where the mapping runs are kept and reused "
                                                   "(default: ./swarmslam-maps)")
-    lo.add_argument("--json", help="write results here (atomically)")
-    lo.add_argument("--plots", metavar="DIR", help="write the figures (PNG) here (extra 'plots')")
+    _bench_outputs(lo)
     lo.set_defaults(func=_bench_localize)
     pg = bsub.add_parser("posegraph", help="Gauss-Newton on the g2o benchmark graphs")
     pg.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
     pg.add_argument("--repeats", type=int, default=5)
-    pg.add_argument("--json", help="write results here (atomically)")
-    pg.add_argument("--plots", metavar="DIR", help="write the figures (PNG) here (extra 'plots')")
+    _bench_outputs(pg)
     pg.set_defaults(func=_bench_posegraph)
     env = bsub.add_parser("env", help="SwarmSlam-v0 steps/s with SLAM off and on, LiDAR scans/s")
     env.add_argument("--world", default="office")
     env.add_argument("--steps", type=int, default=5000, help="steps timed without SLAM")
     env.add_argument("--slam-steps", type=int, default=1000, help="steps timed with SLAM")
-    env.add_argument("--json", help="write results here (atomically)")
-    env.add_argument("--plots", metavar="DIR", help="write the figures (PNG) here (extra 'plots')")
+    _bench_outputs(env)
     env.set_defaults(func=_bench_env)
     rt = bsub.add_parser("runtime", help="the fixed-rate runtime on Intel: latency, misses, "
                                           "memory, accuracy; or --soak on simulated scans")
@@ -425,8 +425,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="scans ticked with and without a recording view attached (0: skip)")
     rt.add_argument("--soak", type=float, metavar="MINUTES",
                     help="instead: run this long on simulated scans, sampling memory")
-    rt.add_argument("--json", help="write results here (atomically)")
-    rt.add_argument("--plots", metavar="DIR", help="write the figures (PNG) here (extra 'plots')")
+    _bench_outputs(rt)
     _config_options(rt, DEFAULT_PRESET)
     rt.set_defaults(func=_bench_runtime)
     return p

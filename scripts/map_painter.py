@@ -47,9 +47,7 @@ class MapPainter:
         if self._grid is None:
             if n == 0 or version == self._version:
                 return None
-            m = self.config
-            corners = nodes.extent_points(poses, n, m.max_range)
-            self._grid = OccupancyGrid.covering(corners, m.resolution, m.margin, m.max_cells)
+            self._grid = OccupancyGrid.covering_nodes(poses, nodes, n, self.config)
             self._next, self._count, self._version = 0, n, version
         grid, end = self._grid, min(self._next + self.nodes_per_tick, self._count)
         for k in range(self._next, end):

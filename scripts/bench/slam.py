@@ -52,6 +52,7 @@ def bench_slam(data_dir: Path, optimizers=("abc", "pso", "fa"), logs=tuple(LOGS)
         log, rel = LOGS[name]
         log_path = require(Path(data_dir) / "radish" / log)
         rel_path = require(Path(data_dir) / "radish" / rel)
+        relations = read_relations(rel_path) if plots else None  # once per log, for the plots
         rows = []
         for optimizer in optimizers:
             for odometry in modes:
@@ -62,7 +63,7 @@ def bench_slam(data_dir: Path, optimizers=("abc", "pso", "fa"), logs=tuple(LOGS)
                     m, runtime = replay_run(log_path, rel_path, optimizer, odometry, run_out,
                                             limit, seed, label=label, config=config)
                     if plots:
-                        plot_run(plots, label, runtime, read_relations(rel_path))
+                        plot_run(plots, label, runtime, relations)
                     m.update(dataset=name, seed=seed)
                     results["runs"].append(m)
                     runs.append(m)
