@@ -304,8 +304,30 @@ class RelocalizationConfig(Section):
     resolution: float = _setting(0.1, "m per cell of the hit grid the search scores on", gt=0)
     hit_sigma: float = _setting(0.1, "m: a point this far from a surface scores e^(-1/2) of "
                                 "one on it", gt=0)
-    levels: int = _setting(6, "pyramid levels above the hit grid (blocks of 2^levels cells)",
-                           ge=1, le=12)
+    exact_max_cells: int = _setting(
+        400_000, "fine cells up to which one exact search runs on the fine grid; a larger map is "
+        "searched coarse to fine (the exact search's cost grows with the map: 0.2-0.35 ms per "
+        "1,000 cells measured)", ge=0)
+    coarse_resolution: float = _setting(
+        0.5, "m per cell of the first pass's hit grid on a map over exact_max_cells (the "
+        "exhaustive search runs there, its candidates are refined at resolution)", gt=0)
+    coarse_hit_sigma: float = _setting(0.4, "m: hit_sigma of the first pass's grid", gt=0)
+    coarse_points: int = _setting(32, "query points of the first pass at most (thinned evenly)",
+                                  ge=3)
+    coarse_min_score: float = _setting(0.6, "mean hit value (0-1) a first-pass candidate needs",
+                                       gt=0, le=1)
+    coarse_ratio: float = _setting(0.8, "first-pass candidates score at least this share of "
+                                   "its best", gt=0, le=1)
+    coarse_candidates: int = _setting(64, "first-pass candidates refined at most (the best "
+                                      "distinct ones)", ge=1)
+    coarse_distinct_distance: float = _setting(
+        0.5, "m: first-pass candidates nearer than this (and coarse_distinct_angle) are one",
+        gt=0)
+    coarse_distinct_angle: float = _setting(0.15, "rad: see coarse_distinct_distance", gt=0)
+    refine_moves: int = _setting(3, "times a candidate's fine window may move to a best found on "
+                                 "its edge", ge=0)
+    levels: int = _setting(6, "pyramid levels above the exhaustive pass's hit grid (blocks of "
+                           "2^levels cells)", ge=1, le=12)
     heading_levels: int = _setting(
         0, "top levels whose blocks also span 2, 4, … headings (looser bounds, fewer roots)",
         ge=0)
@@ -330,8 +352,8 @@ class RelocalizationConfig(Section):
     confirm_seconds: float = _setting(
         2.0, "s of scans over which candidate poses are tracked (or merged) before one is "
         "committed", ge=0)
-    max_cells: int = _setting(50_000_000, "cells of the hit grid at most (memory: levels + 2 "
-                              "bytes per cell)", ge=16)
+    max_cells: int = _setting(50_000_000, "cells of the fine hit grid at most (memory: about "
+                              "3 bytes per cell, docs/method.md §8)", ge=16)
 
 
 @dataclass(frozen=True)

@@ -267,6 +267,9 @@ def branch_and_bound(bounds, shifts, groups, free, offsets, n_points, n_headings
                     n_found = _keep(found, n_found, cell_radius, heading_radius, n_headings,
                                     s, a, i, j)
                     floor = max(floor, int(math.ceil(ratio * found[0, 0])))
+                    if n_found == found.shape[0]:
+                        # full: a pose must beat the last row to change anything (_keep)
+                        floor = max(floor, found[n_found - 1, 0] + 1)
                 continue
             # the four (or, with the heading group halved, eight) children, pushed worst first
             # so that the best is popped next
@@ -298,8 +301,53 @@ def branch_and_bound(bounds, shifts, groups, free, offsets, n_points, n_headings
                         stack[k, C_ROW] = ii
                         stack[k, C_COL] = jj
                         depth += 1
+    floor = max(min_score, int(math.ceil(ratio * found[0, 0]))) if n_found else min_score
     while n_found > 0 and found[n_found - 1, 0] < floor:  # rivals the best outgrew
         n_found -= 1
+    return n_found, scored
+
+
+@njit(cache=True)
+def refine_candidates(hits, free, offsets, n_points, n_headings, candidates, n_candidates,
+                      cell_radius, heading_radius, window_cells, window_headings, max_moves,
+                      min_score, ratio, found):
+    """The best pose of each candidate's window on the (fine) hit grid — every cell within
+    ``window_cells`` and heading within ``window_headings`` steps of the candidate (rows of
+    ``candidates``: heading, row, column on this grid); a best on the window's edge moves the
+    window there, up to ``max_moves`` times, so that the answer is a local best of the grid.
+    Kept as :func:`branch_and_bound` keeps its leaves: merged with a kept pose of the same
+    place, the distinct ones scoring at least ``ratio`` of the best in ``found``, best first.
+    Returns ``(how many, poses scored)``. ``hits`` is a one-level stack (``bounds[:1]``)."""
+    ny, nx = hits.shape[1], hits.shape[2]
+    n_found = 0
+    scored = 0
+    for c in range(n_candidates):
+        ca, ci, cj = candidates[c, 0], candidates[c, 1], candidates[c, 2]
+        best, ba, bi, bj = -1, 0, 0, 0
+        for _ in range(max_moves + 1):
+            edge = False
+            for t in range(-window_headings, window_headings + 1):
+                a = (ca + t) % n_headings
+                for i in range(max(ci - window_cells, 0), min(ci + window_cells + 1, ny)):
+                    for j in range(max(cj - window_cells, 0), min(cj + window_cells + 1, nx)):
+                        if free[0, i, j] == 0:
+                            continue
+                        s = _score(hits, 0, 0, offsets, a, n_points, i, j)
+                        scored += 1
+                        if s > best:
+                            best, ba, bi, bj = s, a, i, j
+                            edge = (abs(t) == window_headings or abs(i - ci) == window_cells
+                                    or abs(j - cj) == window_cells)
+            if not edge:
+                break
+            ca, ci, cj = ba, bi, bj
+        if best >= min_score:
+            n_found = _keep(found, n_found, cell_radius, heading_radius, n_headings, best, ba,
+                            bi, bj)
+    if n_found:
+        floor = max(min_score, int(math.ceil(ratio * found[0, 0])))
+        while found[n_found - 1, 0] < floor:
+            n_found -= 1
     return n_found, scored
 
 
@@ -336,27 +384,27 @@ def heading_step(resolution: float, reach: float) -> float:
 
 
 class PlaceMap:
-    """A saved map rendered for the global search: the hit pyramid and where the robot may stand,
-    over the bounding box of the node scans. Built once (start-up); read-only afterwards."""
+    """A saved map rendered for the global search at one resolution: the hit grid, its bound
+    pyramid (``levels`` above it) and where the robot may stand, over the bounding box of the
+    node scans. Built once (start-up); read-only afterwards."""
 
     def __init__(self, poses, nodes: NodeScans, n_nodes: int, config: RelocalizationConfig,
-                 max_gap: float):
+                 max_gap: float, resolution: float, hit_sigma: float, levels: int,
+                 heading_levels: int = 0, standable: PlaceMap | None = None):
+        """``standable``: a finer map whose standable cells decide this one's — a coarse cell
+        is standable if any of its fine cells is, since a coarse cell in a narrow corridor also
+        holds wall and would otherwise count as occupied."""
         c = self.config = config
-        res = c.resolution
-        self.n_levels = c.levels + 1
+        self.resolution = res = resolution
+        self.n_levels = levels + 1
         # headings are searched in groups on the top heading_levels levels (docs/method.md §8)
-        first = c.levels - c.heading_levels
+        first = levels - heading_levels
         self.groups = np.array([1 << max(h - first, 0) for h in range(self.n_levels)], np.int64)
         self.shifts = np.array([bound_shift(int(g)) for g in self.groups], np.int64)
-        # A bound's block may start this far before the map and still cover part of it: the
-        # hit grid is padded with that much empty space (docs/method.md §8).
-        pad = (1 << c.levels) + 2 * int(self.shifts[-1])
         reach = c.map_range
         points, counts = nodes.points, nodes.counts
-        ends = nodes.extent_points(poses, n_nodes, reach)
-        lo = ends.min(axis=0) - 3 * c.hit_sigma - pad * res
-        hi = ends.max(axis=0) + 3 * c.hit_sigma + pad * res
-        nx, ny = (np.ceil((hi - lo) / res).astype(int) + 1).tolist()
+        lo, (nx, ny) = self.extent(poses, nodes, n_nodes, c, resolution, hit_sigma,
+                                   (1 << levels) + 2 * int(self.shifts[-1]))
         if nx * ny > c.max_cells:
             raise ValueError(f"the map needs {nx}×{ny} cells at {res} m for the global search, "
                              f"more than relocalization.max_cells={c.max_cells}")
@@ -364,28 +412,52 @@ class PlaceMap:
         pyramid = np.zeros((self.n_levels + 1, ny, nx), np.uint8)
         d2 = np.zeros((ny, nx))
         render_hits(points, counts, poses, n_nodes, reach, max_gap, lo[0], lo[1], res,
-                    c.hit_sigma, d2, pyramid[0])
+                    hit_sigma, d2, pyramid[0])
         pool_pyramid(pyramid)
-        self.hits = pyramid[0].copy()
         self.bounds = np.zeros((self.n_levels, ny, nx), np.uint8)
         pool_bounds(pyramid, self.shifts, self.bounds)
+        # level 0 bounds a single pose: the hit grid itself, unless its heading group is wider
+        self.hits = self.bounds[0] if self.shifts[0] == 0 else pyramid[0].copy()
         del pyramid, d2
         # Where the robot may stand: cells the node scans saw through (log-odds below zero).
-        logodds = np.zeros((ny, nx), np.float32)
-        region = np.zeros((ny, nx), np.uint8)
-        for m in range(n_nodes):
-            integrate_scan(logodds, region, lo[0], lo[1], res, poses[m], points[m], counts[m],
-                           reach)
         self.free = np.zeros((self.n_levels, ny, nx), np.uint8)
-        self.free[0] = logodds < 0
+        if standable is None:
+            logodds = np.zeros((ny, nx), np.float32)
+            region = np.zeros((ny, nx), np.uint8)
+            for m in range(n_nodes):
+                integrate_scan(logodds, region, lo[0], lo[1], res, poses[m], points[m],
+                               counts[m], reach)
+            self.free[0] = logodds < 0
+        else:
+            rows, cols = np.nonzero(standable.free[0])
+            x, y = standable.position_of(rows, cols)
+            self.free[0][self.cell_of(x, y)] = 1
         pool_pyramid(self.free)
+
+    @staticmethod
+    def extent(poses, nodes: NodeScans, n_nodes: int, config: RelocalizationConfig,
+               resolution: float, hit_sigma: float, pad: int):
+        """The grid's origin and ``(columns, rows)``: the node scans' bounding box, widened by
+        3σ and ``pad`` cells. A bound's block may start that far before the map and still cover
+        part of it: the padding is empty space (docs/method.md §8)."""
+        ends = nodes.extent_points(poses, n_nodes, config.map_range)
+        lo = ends.min(axis=0) - 3 * hit_sigma - pad * resolution
+        hi = ends.max(axis=0) + 3 * hit_sigma + pad * resolution
+        return lo, (np.ceil((hi - lo) / resolution).astype(int) + 1).tolist()
+
+    def cell_of(self, x, y):
+        """The (row, column) of the cell holding the point (or arrays of them)."""
+        res = self.resolution
+        row = np.floor((np.asarray(y) - self.origin[1]) / res + 0.5).astype(np.int64)
+        col = np.floor((np.asarray(x) - self.origin[0]) / res + 0.5).astype(np.int64)
+        return (row, col) if row.ndim else (int(row), int(col))
 
     @property
     def shape(self) -> tuple[int, int]:
         return self.hits.shape
 
     def position_of(self, row: int, col: int) -> tuple[float, float]:
-        res = self.config.resolution
+        res = self.resolution
         return self.origin[0] + col * res, self.origin[1] + row * res
 
     def score(self, points, n: int, pose) -> float:
@@ -393,7 +465,7 @@ class PlaceMap:
         if n == 0:
             return 0.0
         world = compose(pose, np.c_[points[:n], np.zeros(n)])
-        res = self.config.resolution
+        res = self.resolution
         cols = np.floor((world[:, 0] - self.origin[0]) / res + 0.5).astype(int)
         rows = np.floor((world[:, 1] - self.origin[1]) / res + 0.5).astype(int)
         ny, nx = self.shape

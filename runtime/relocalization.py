@@ -4,10 +4,14 @@
     relocalizer = Relocalizer(config, poses, nodes, n_nodes)
     answer = relocalizer.relocalize(scan)        # Located(pose, score) | Ambiguous
 
-1. search: the exact best pose on the hit grid over every standable cell and heading
-   (:func:`runtime.place_search.branch_and_bound`);
-2. ambiguity: the same search keeps every distinct pose scoring at least ``ambiguity_ratio``
-   of the best — any such rival is a different explanation about as good, and the answer is
+1. search, coarse to fine: an exhaustive branch and bound over every standable cell and
+   heading of a coarse hit grid (``coarse_resolution``, blurred by ``coarse_hit_sigma``) gives
+   the best distinct candidates (:func:`runtime.place_search.branch_and_bound`); each is then
+   scored at every pose of a small window on the fine grid
+   (:func:`runtime.place_search.refine_candidates`). A map of at most ``exact_max_cells``
+   fine cells is searched by one exact branch and bound on the fine grid instead;
+2. ambiguity: every distinct pose scoring at least ``ambiguity_ratio`` of the best is kept —
+   any such rival is a different explanation about as good, and the answer is
    :class:`Ambiguous` (with every such pose, best first);
 3. polish: the swarm (Alg. 5) aligns the scan with the nearest node scans in a small box around
    the grid's answer, as loop closure does.
@@ -31,6 +35,7 @@ from runtime.place_search import (
     PlaceMap,
     branch_and_bound,
     heading_step,
+    refine_candidates,
     rotate_query,
     select_query,
 )
@@ -57,6 +62,10 @@ class Ambiguous:
     reason: str
 
 
+def _heading_count(resolution: float, reach: float) -> int:
+    return int(math.ceil(2 * math.pi / heading_step(resolution, reach)))
+
+
 class Relocalizer:
     """The global search over one saved map (read-only): its buffers are allocated here."""
 
@@ -64,26 +73,44 @@ class Relocalizer:
         rc = self.config = config.relocalization
         self.poses = poses[:n_nodes]
         self.nodes, self.n_nodes = nodes, n_nodes
-        self.place = PlaceMap(poses, nodes, n_nodes, rc, config.matcher.max_gap)
-        self.n_headings = int(math.ceil(2 * math.pi / heading_step(rc.resolution,
-                                                                  rc.query_range)))
-        ny, nx = self.place.shape
+        gap = config.matcher.max_gap
+        # one exact pass where it is affordable, coarse to fine on a larger map (§8)
+        _, (nx, ny) = PlaceMap.extent(poses, nodes, n_nodes, rc, rc.resolution, rc.hit_sigma, 0)
+        two = nx * ny > rc.exact_max_cells
+        # the answer's grid; with a first pass, only its hit grid is needed (no pyramid)
+        self.place = PlaceMap(poses, nodes, n_nodes, rc, gap, rc.resolution, rc.hit_sigma,
+                              0 if two else rc.levels, 0 if two else rc.heading_levels)
+        # the grid the exhaustive branch and bound runs on (docs/method.md §8)
+        self.coarse = (PlaceMap(poses, nodes, n_nodes, rc, gap, rc.coarse_resolution,
+                                rc.coarse_hit_sigma, rc.levels, rc.heading_levels,
+                                standable=self.place)
+                       if two else None)
+        exhaustive = self.coarse or self.place
+        self.n_headings = _heading_count(rc.resolution, rc.query_range)
+        n_exhaustive = _heading_count(exhaustive.resolution, rc.query_range)
+        ny, nx = exhaustive.shape
         top = 1 << rc.levels
-        group = int(self.place.groups[-1])
-        groups = -(-self.n_headings // group)
+        group = int(exhaustive.groups[-1])
+        groups = -(-n_exhaustive // group)
         roots = groups * (-(-ny // top)) * (-(-nx // top))
         self._query = np.zeros((config.sensor.max_points, 2))  # a larger scan gets its own
         # headings past the last (a group's middle may lie there) wrap around the circle
-        self._offsets = np.zeros((groups * group, rc.query_points, 2), np.int64)
+        self._offsets = np.zeros((groups * group if not two else self.n_headings,
+                                  rc.query_points, 2), np.int64)
         self._roots = np.zeros((roots, 5), np.int64)
         self._stack = np.zeros((8 * (rc.levels + 2), 5), np.int64)
         self._found = np.zeros((rc.max_hypotheses, 4), np.int64)
+        if two:  # the first pass's query, offsets, candidates
+            self._coarse_query = np.zeros((rc.query_points, 2))
+            self._coarse_offsets = np.zeros((groups * group, rc.coarse_points, 2), np.int64)
+            self._coarse_found = np.zeros((rc.coarse_candidates, 4), np.int64)
+            self._candidates = np.zeros((rc.coarse_candidates, 3), np.int64)
         self.cell_radius = int(math.ceil(rc.distinct_distance / rc.resolution))
         self.matcher = ScanMatcher(replace(config.matcher, guess_window=rc.refine_window),
                                    seed=seed)
         self.reference = self.matcher.new_reference()
         self._submap = PointScan(config.sensor.max_points * rc.refine_nodes)
-        self.blocks_scored = 0  # by the last search
+        self.blocks_scored = 0  # by the last search (blocks and refined poses)
 
     # ------------------------------------------------------------------ the answer
     def relocalize(self, scan: PointScan) -> Located | Ambiguous:
@@ -127,25 +154,64 @@ class Relocalizer:
         """The best pose and every distinct pose scoring ``ambiguity_ratio`` of it (at most
         ``max_hypotheses``), as ``(pose, mean hit value)``, best first."""
         rc = self.config
-        # the heading step moves the query's farthest point by one cell (fewer steps for a
-        # scan of a small room than the allocation's query_range allows)
-        reach = max(float(np.max(np.hypot(query[:n, 0], query[:n, 1]))), rc.resolution)
-        n_headings = min(int(math.ceil(2 * math.pi / heading_step(rc.resolution, reach))),
-                         self.n_headings)
-        step = 2 * math.pi / n_headings
-        rotate_query(query, n, rc.resolution, step, self._offsets.shape[0], self._offsets)
-        heading_radius = int(math.ceil(rc.distinct_angle / step))
+        n_headings, step = self._rotate(query, n, self.place, self._offsets)
         full = HIT_MAX * n
-        n_found, self.blocks_scored = branch_and_bound(
-            self.place.bounds, self.place.shifts, self.place.groups, self.place.free,
-            self._offsets, n, n_headings, int(math.ceil(rc.min_score * full)),
-            rc.ambiguity_ratio, self.cell_radius, heading_radius, self._roots,
-            self._stack, self._found)
+        min_score = int(math.ceil(rc.min_score * full))
+        heading_radius = int(math.ceil(rc.distinct_angle / step))
+        if self.coarse is None:  # one exhaustive pass
+            n_found, self.blocks_scored = branch_and_bound(
+                self.place.bounds, self.place.shifts, self.place.groups, self.place.free,
+                self._offsets, n, n_headings, min_score, rc.ambiguity_ratio, self.cell_radius,
+                heading_radius, self._roots, self._stack, self._found)
+        else:
+            n_candidates, blocks = self._coarse_pass(query, n)
+            # each candidate's cell and heading on the fine grid; its window spans one coarse
+            # cell and heading step around it, and one fine one more
+            coarse = self.coarse
+            cells = coarse.resolution / self.place.resolution
+            for k in range(n_candidates):
+                _, a, row, col = self._coarse_found[k]
+                x, y = coarse.position_of(int(row), int(col))
+                self._candidates[k, 0] = int(round(a * self._coarse_step / step)) % n_headings
+                self._candidates[k, 1:] = self.place.cell_of(x, y)
+            n_found, poses = refine_candidates(
+                self.place.bounds, self.place.free, self._offsets, n, n_headings,
+                self._candidates, n_candidates, self.cell_radius, heading_radius,
+                int(math.ceil(cells)) + 1, int(math.ceil(self._coarse_step / step)) + 1,
+                rc.refine_moves, min_score, rc.ambiguity_ratio, self._found)
+            self.blocks_scored = blocks + poses
         found = []
         for score, a, row, col in self._found[:n_found]:
             x, y = self.place.position_of(int(row), int(col))
             found.append((np.array([x, y, wrap_angle(int(a) * step)]), score / full))
         return found
+
+    def _coarse_pass(self, query, n: int) -> tuple[int, int]:
+        """The first pass: branch and bound on the coarse grid with the query thinned to
+        ``coarse_points``; its best distinct poses (at most ``coarse_candidates``, scoring at
+        least ``coarse_ratio`` of the best) are the candidates. Returns ``(how many, blocks
+        scored)``."""
+        rc, coarse = self.config, self.coarse
+        m = select_query(query, n, math.inf, 0.0, rc.coarse_points, self._coarse_query)
+        n_headings, self._coarse_step = self._rotate(self._coarse_query, m, coarse,
+                                                     self._coarse_offsets)
+        return branch_and_bound(
+            coarse.bounds, coarse.shifts, coarse.groups, coarse.free, self._coarse_offsets, m,
+            n_headings, int(math.ceil(rc.coarse_min_score * HIT_MAX * m)), rc.coarse_ratio,
+            int(math.ceil(rc.coarse_distinct_distance / coarse.resolution)),
+            int(math.ceil(rc.coarse_distinct_angle / self._coarse_step)), self._roots,
+            self._stack, self._coarse_found)
+
+    def _rotate(self, query, n: int, place: PlaceMap, offsets) -> tuple[int, float]:
+        """The query's cell offsets at each heading of ``place``'s grid; the heading step moves
+        the query's farthest point by one cell (fewer steps for a scan of a small room than
+        the allocation's ``query_range`` allows). Returns ``(headings, step)``."""
+        res = place.resolution
+        reach = max(float(np.max(np.hypot(query[:n, 0], query[:n, 1]))), res)
+        n_headings = min(_heading_count(res, reach), _heading_count(res, self.config.query_range))
+        step = 2 * math.pi / n_headings
+        rotate_query(query, n, res, step, offsets.shape[0], offsets)
+        return n_headings, step
 
     def polish(self, scan: PointScan, pose) -> np.ndarray:
         """The swarm's alignment of ``scan`` with the nearest node scans, in a small box around

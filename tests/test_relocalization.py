@@ -17,7 +17,9 @@ from runtime.place_search import (
     branch_and_bound,
     pool_bounds,
     pool_pyramid,
+    refine_candidates,
     rotate_query,
+    select_query,
 )
 from runtime.pose import between
 from runtime.relocalization import Ambiguous, Located, Relocalizer
@@ -25,6 +27,8 @@ from runtime.scan import PointScan
 from runtime.warm_up import loop_path, room_world, scan_at
 
 ANGLES = np.linspace(-np.pi, np.pi, 360, endpoint=False)
+# the test worlds are small enough for the exact search: this searches them coarse to fine
+COARSE_TO_FINE = override(SlamConfig(), {"relocalization.exact_max_cells": 0})
 
 
 def map_from(world, poses, max_range=12.0):
@@ -82,12 +86,65 @@ def test_branch_and_bound_finds_the_exact_best_pose():
     assert scored < brute.size  # and it scored fewer blocks than there are poses
 
 
+def test_a_full_list_of_poses_is_the_top_of_brute_force():
+    """With room for K poses the search keeps the K best (the floor rises to the K-th once the
+    list is full, which prunes without changing the answer)."""
+    rng = np.random.default_rng(8)
+    ny, nx, levels, n_headings, n, k = 32, 36, 3, 16, 10, 6
+    groups = np.ones(levels + 1, np.int64)
+    shifts = np.zeros(levels + 1, np.int64)
+    pyramid = np.zeros((levels + 2, ny, nx), np.uint8)
+    pyramid[0] = rng.integers(0, 256, size=(ny, nx)) * (rng.random((ny, nx)) < 0.4)
+    pool_pyramid(pyramid)
+    bounds = np.zeros((levels + 1, ny, nx), np.uint8)
+    pool_bounds(pyramid, shifts, bounds)
+    free = np.zeros((levels + 1, ny, nx), np.uint8)
+    free[0, 8:24, 8:28] = 1  # within the points' reach of the edges: bounds stay exact
+    pool_pyramid(free)
+    points = rng.uniform(-0.5, 0.5, size=(n, 2))
+    offsets = np.zeros((n_headings, n, 2), np.int64)
+    rotate_query(points, n, 0.1, 2 * math.pi / n_headings, n_headings, offsets)
+    brute = []
+    for a in range(n_headings):
+        for i, j in zip(*np.nonzero(free[0])):
+            r, q = i + offsets[a, :, 0], j + offsets[a, :, 1]
+            ok = (r >= 0) & (r < ny) & (q >= 0) & (q < nx)
+            brute.append(int(pyramid[0][r[ok], q[ok]].astype(np.int64).sum()))
+    found = np.zeros((k, 4), np.int64)
+    n_found, _ = branch_and_bound(bounds, shifts, groups, free, offsets, n, n_headings, 1, 0.01,
+                                  0, 0, np.zeros((n_headings * 64, 5), np.int64),
+                                  np.zeros((64, 5), np.int64), found)
+    assert n_found == k
+    assert found[:, 0].tolist() == sorted(brute, reverse=True)[:k]
+
+
+def test_the_coarse_to_fine_search_answers_as_the_exhaustive_one(room):
+    """Two passes (coarse to fine) and one exact branch and bound on the fine grid give the same
+    kind of answer, and the same pose within a cell and a heading step, on kidnapped scans."""
+    world, path, relocalizer = room
+    poses, nodes = relocalizer.poses, relocalizer.nodes
+    exact = Relocalizer(SlamConfig(), poses, nodes, len(poses))
+    assert exact.coarse is None and relocalizer.coarse is not None
+    rng = np.random.default_rng(9)
+    for _ in range(12):
+        k = rng.integers(len(path))
+        truth = path[k] + [rng.normal(0, 0.3), rng.normal(0, 0.3), rng.uniform(-np.pi, np.pi)]
+        q = query(world, truth, rng)
+        n = select_query(q.buffer, q.count, 20.0, 0.2, 96, np.zeros((q.count, 2)))
+        pts = np.ascontiguousarray(select_query(q.buffer, q.count, 20.0, 0.2, 96,
+                                                out := np.zeros((q.count, 2))) and out[:n])
+        two, one = relocalizer.search(pts, n), exact.search(pts, n)
+        assert len(two) == len(one), (truth, two, one)
+        for (p, s), (pe, se) in zip(two, one):
+            assert close(p, pe, 0.11, 0.02) and s == pytest.approx(se, abs=0.02), (p, pe)
+
+
 @pytest.fixture(scope="module")
 def room():
     path = loop_path(60)
     world = room_world(3, size=(12.0, 9.0), boxes=14, walls=0, keep_clear=path)
     poses, nodes = map_from(world, path)
-    return world, path, Relocalizer(SlamConfig(), poses, nodes, len(poses))
+    return world, path, Relocalizer(COARSE_TO_FINE, poses, nodes, len(poses))
 
 
 def test_a_kidnapped_robot_is_found_with_no_prior(room):
@@ -104,7 +161,8 @@ def test_a_kidnapped_robot_is_found_with_no_prior(room):
     assert found >= 18, f"found {found} of 20"
 
 
-def test_two_identical_rooms_are_ambiguous_not_wrong():
+@pytest.mark.parametrize("config", [SlamConfig(), COARSE_TO_FINE], ids=["exact", "coarse"])
+def test_two_identical_rooms_are_ambiguous_not_wrong(config):
     room = room_world(5, size=(6.0, 5.0), boxes=4, walls=1)
     twin = room + [8.0, 0.0, 8.0, 0.0]  # the same room, 8 m to the right, walls apart
     world = np.vstack([room, twin])
@@ -112,7 +170,8 @@ def test_two_identical_rooms_are_ambiguous_not_wrong():
              for x, y, t in ((1.5, 1.5, 0.0), (4.5, 1.5, 1.6), (4.5, 3.5, 3.1), (1.5, 3.5, -1.6),
                              (3.0, 2.5, 0.8))]
     poses, nodes = map_from(world, poses)
-    relocalizer = Relocalizer(SlamConfig(), poses, nodes, len(poses))
+    relocalizer = Relocalizer(config, poses, nodes, len(poses))
+    assert (relocalizer.coarse is None) == (config is not COARSE_TO_FINE)
     rng = np.random.default_rng(2)
     for truth in ((2.5, 2.0, 0.4), (10.8, 3.0, -2.0)):
         answer = relocalizer.relocalize(query(world, truth, rng))
@@ -150,25 +209,36 @@ def test_the_map_must_fit_its_cell_capacity(room):
 
 
 def test_the_search_allocates_nothing_after_warm_up(room):
+    """Both compiled passes: the coarse branch and bound and the fine windows."""
     world, path, relocalizer = room
-    place = relocalizer.place
+    coarse, place = relocalizer.coarse, relocalizer.place
     rng = np.random.default_rng(6)
     q = query(world, path[3], rng)
     n = 64
     pts = np.ascontiguousarray(q.points[:: max(q.count // n, 1)][:n])
     n = len(pts)
-    rotate_query(pts, n, place.config.resolution, 2 * math.pi / relocalizer.n_headings,
-                 relocalizer._offsets.shape[0], relocalizer._offsets)
-    args = (place.bounds, place.shifts, place.groups, place.free, relocalizer._offsets, n,
-            relocalizer.n_headings, int(0.5 * HIT_MAX * n), 0.9, 10, 20, relocalizer._roots,
-            relocalizer._stack, relocalizer._found)
-    branch_and_bound(*args)
+    n_coarse = relocalizer._coarse_offsets.shape[0]
+    offsets = np.zeros((n_coarse, n, 2), np.int64)
+    rotate_query(pts, n, coarse.resolution, 2 * math.pi / n_coarse, n_coarse, offsets)
+    coarse_args = (coarse.bounds, coarse.shifts, coarse.groups, coarse.free, offsets, n,
+                   n_coarse, int(0.5 * HIT_MAX * n), 0.8, 1, 4, relocalizer._roots,
+                   relocalizer._stack, relocalizer._coarse_found)
+    n_candidates, _ = branch_and_bound(*coarse_args)
+    assert n_candidates > 0
+    rotate_query(pts, n, place.resolution, 2 * math.pi / relocalizer.n_headings,
+                 relocalizer.n_headings, relocalizer._offsets)
+    candidates = relocalizer._candidates
+    candidates[:n_candidates] = relocalizer._coarse_found[:n_candidates, 1:] * [1, 5, 5]
+    fine_args = (place.bounds, place.free, relocalizer._offsets, n, relocalizer.n_headings,
+                 candidates, n_candidates, 10, 20, 6, 6, 3, int(0.5 * HIT_MAX * n), 0.9,
+                 relocalizer._found)
+    refine_candidates(*fine_args)
     tracemalloc.start()
     try:
-        branch_and_bound(*args)
         before, _ = tracemalloc.get_traced_memory()
         for _ in range(20):
-            branch_and_bound(*args)
+            branch_and_bound(*coarse_args)
+            refine_candidates(*fine_args)
         after, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
