@@ -330,7 +330,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="swarm method (default: the configuration's, abc)")
     rp.add_argument("--no-odometry", action="store_true", help="scans only, as in the paper")
     rp.add_argument("--out", default="swarmslam-replay", help="output folder")
-    rp.add_argument("--limit", type=int, help="only the first N scans")
+    rp.add_argument("--limit", type=_at_least_one, help="only the first N scans")
     rp.add_argument("--seed", type=int, default=0)
     rp.add_argument("--start", type=int, default=0, help="the first scan replayed")
     saved = rp.add_mutually_exclusive_group()
@@ -365,7 +365,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
     m.add_argument("--optimizers", default="abc,pso,fa")
     m.add_argument("--datasets", default="intel,aces")
-    m.add_argument("--limit", type=int, help="match only the first N pairs per dataset")
+    m.add_argument("--limit", type=_at_least_one, help="match only the first N pairs per dataset")
     m.add_argument("--no-paper", action="store_true", help="skip the paper-form variants")
     m.add_argument("--seed", type=int, default=0)
     _bench_outputs(m)
@@ -377,7 +377,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--datasets", default="intel,aces,clinic")
     s.add_argument("--seeds", default="0,1,2", help="seeds per run (mean and worst reported)")
     s.add_argument("--modes", default="both", choices=["both", "odometry", "scans"])
-    s.add_argument("--limit", type=int, help="only the first N scans of each log")
+    s.add_argument("--limit", type=_at_least_one, help="only the first N scans of each log")
     s.add_argument("--out", help="keep each run's map, trajectory and graph here")
     _bench_outputs(s)
     _config_options(s, DEFAULT_PRESET)
@@ -420,7 +420,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="minutes of the log replayed at its recorded rate (0: skip; 45: all)")
     rt.add_argument("--traced-ticks", type=int, default=6000,
                     help="ticks measured under tracemalloc after warm-up")
-    rt.add_argument("--limit", type=int, help="only the first N scans")
+    rt.add_argument("--limit", type=_at_least_one, help="only the first N scans")
     rt.add_argument("--view-scans", type=int, default=4000,
                     help="scans ticked with and without a recording view attached (0: skip)")
     rt.add_argument("--soak", type=float, metavar="MINUTES",
@@ -429,6 +429,17 @@ def build_parser() -> argparse.ArgumentParser:
     _config_options(rt, DEFAULT_PRESET)
     rt.set_defaults(func=_bench_runtime)
     return p
+
+
+def _at_least_one(text: str) -> int:
+    """A count argument: a whole number ≥ 1 (0 or −5 would silently mean "all" or "drop")."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
 
 
 def main(argv=None) -> int:

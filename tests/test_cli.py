@@ -4,6 +4,7 @@ import gzip
 import json
 
 import numpy as np
+import pytest
 
 from runtime.warm_up import loop_path, room_world, scan_at
 from scripts.carmen import flaser_angles
@@ -149,3 +150,15 @@ def test_bench_generalization_reports_every_figure_and_the_floor(tmp_path, capsy
     assert row["revisit_nodes"] > 0 and row["loops_accepted"] > 0
     assert row["ate_rmse_m"] < 0.1 and row["floor_eT"] < 0.05
     assert "worst loop precision" in capsys.readouterr().out
+
+
+def test_a_count_below_one_is_refused_before_any_work(tmp_path, capsys):
+    """--limit 0 used to replay everything and --limit -5 to drop five scans."""
+    for value in ("0", "-5", "two"):
+        with pytest.raises(SystemExit) as stop:
+            main(["replay", str(tmp_path / "never-read.clf"), "--limit", value,
+                  "--out", str(tmp_path / "out")])
+        assert stop.value.code == 2
+        err = capsys.readouterr().err
+        assert "--limit" in err and ("at least 1" in err or "whole number" in err), err
+    assert not (tmp_path / "out").exists()
