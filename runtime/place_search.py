@@ -465,9 +465,7 @@ class PlaceMap:
         if n == 0:
             return 0.0
         world = compose(pose, np.c_[points[:n], np.zeros(n)])
-        res = self.resolution
-        cols = np.floor((world[:, 0] - self.origin[0]) / res + 0.5).astype(int)
-        rows = np.floor((world[:, 1] - self.origin[1]) / res + 0.5).astype(int)
+        rows, cols = self.cell_of(world[:, 0], world[:, 1])
         ny, nx = self.shape
         inside = (rows >= 0) & (rows < ny) & (cols >= 0) & (cols < nx)
         return float(self.hits[rows[inside], cols[inside]].sum()) / (HIT_MAX * n)

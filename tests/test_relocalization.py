@@ -51,30 +51,40 @@ def close(a, b, distance=0.3, angle=math.radians(5)):
     return math.hypot(e[0], e[1]) <= distance and abs(e[2]) <= angle
 
 
-def test_branch_and_bound_finds_the_exact_best_pose():
-    """Against brute force over every standable cell and heading of a random map."""
-    rng = np.random.default_rng(4)
-    ny, nx, levels, n_headings, n = 40, 52, 3, 24, 12
-    groups = np.array([1, 1, 2, 4], np.int64)
+def random_search(rng, ny, nx, groups, hit_share, free_box, free_share, reach, n_headings, n):
+    """A random hit grid with its bounds, a box of standable cells, a query of ``n`` points
+    within ``reach`` m (0.1 m cells) rotated to ``n_headings`` headings, and brute force's score
+    of every pose (heading, row, column; 0 where the robot cannot stand)."""
+    levels = len(groups) - 1
     shifts = np.array([bound_shift(int(g)) for g in groups], np.int64)
     pyramid = np.zeros((levels + 2, ny, nx), np.uint8)
-    pyramid[0] = rng.integers(0, 256, size=(ny, nx)) * (rng.random((ny, nx)) < 0.3)
+    pyramid[0] = rng.integers(0, 256, size=(ny, nx)) * (rng.random((ny, nx)) < hit_share)
     pool_pyramid(pyramid)
     bounds = np.zeros((levels + 1, ny, nx), np.uint8)
     pool_bounds(pyramid, shifts, bounds)
     free = np.zeros((levels + 1, ny, nx), np.uint8)
-    free[0, 8:32, 10:44] = rng.random((24, 34)) < 0.5
+    rows, cols = free_box
+    free[0, rows, cols] = rng.random((rows.stop - rows.start, cols.stop - cols.start)) < free_share
     pool_pyramid(free)
-    points = rng.uniform(-0.6, 0.6, size=(n, 2))  # 0.1 m cells: within 6 cells
-    step = 2 * math.pi / n_headings
+    points = rng.uniform(-reach, reach, size=(n, 2))
     offsets = np.zeros((n_headings, n, 2), np.int64)
-    rotate_query(points, n, 0.1, step, n_headings, offsets)
+    rotate_query(points, n, 0.1, 2 * math.pi / n_headings, n_headings, offsets)
     brute = np.zeros((n_headings, ny, nx), np.int64)
     for a in range(n_headings):
         for i, j in zip(*np.nonzero(free[0])):
             r, q = i + offsets[a, :, 0], j + offsets[a, :, 1]
             ok = (r >= 0) & (r < ny) & (q >= 0) & (q < nx)
             brute[a, i, j] = int(pyramid[0][r[ok], q[ok]].astype(np.int64).sum())
+    return bounds, shifts, free, offsets, brute
+
+
+def test_branch_and_bound_finds_the_exact_best_pose():
+    """Against brute force over every standable cell and heading of a random map."""
+    n_headings, n = 24, 12
+    groups = np.array([1, 1, 2, 4], np.int64)
+    bounds, shifts, free, offsets, brute = random_search(
+        np.random.default_rng(4), 40, 52, groups, 0.3, (slice(8, 32), slice(10, 44)), 0.5,
+        0.6, n_headings, n)  # points within 6 cells
     roots = np.zeros((n_headings * 64, 5), np.int64)
     stack = np.zeros((64, 5), np.int64)
     found = np.zeros((4, 4), np.int64)
@@ -89,33 +99,19 @@ def test_branch_and_bound_finds_the_exact_best_pose():
 def test_a_full_list_of_poses_is_the_top_of_brute_force():
     """With room for K poses the search keeps the K best (the floor rises to the K-th once the
     list is full, which prunes without changing the answer)."""
-    rng = np.random.default_rng(8)
-    ny, nx, levels, n_headings, n, k = 32, 36, 3, 16, 10, 6
-    groups = np.ones(levels + 1, np.int64)
-    shifts = np.zeros(levels + 1, np.int64)
-    pyramid = np.zeros((levels + 2, ny, nx), np.uint8)
-    pyramid[0] = rng.integers(0, 256, size=(ny, nx)) * (rng.random((ny, nx)) < 0.4)
-    pool_pyramid(pyramid)
-    bounds = np.zeros((levels + 1, ny, nx), np.uint8)
-    pool_bounds(pyramid, shifts, bounds)
-    free = np.zeros((levels + 1, ny, nx), np.uint8)
-    free[0, 8:24, 8:28] = 1  # within the points' reach of the edges: bounds stay exact
-    pool_pyramid(free)
-    points = rng.uniform(-0.5, 0.5, size=(n, 2))
-    offsets = np.zeros((n_headings, n, 2), np.int64)
-    rotate_query(points, n, 0.1, 2 * math.pi / n_headings, n_headings, offsets)
-    brute = []
-    for a in range(n_headings):
-        for i, j in zip(*np.nonzero(free[0])):
-            r, q = i + offsets[a, :, 0], j + offsets[a, :, 1]
-            ok = (r >= 0) & (r < ny) & (q >= 0) & (q < nx)
-            brute.append(int(pyramid[0][r[ok], q[ok]].astype(np.int64).sum()))
+    n_headings, n, k = 16, 10, 6
+    groups = np.ones(4, np.int64)
+    # standable cells within the points' reach of the edges: bounds stay exact
+    bounds, shifts, free, offsets, brute = random_search(
+        np.random.default_rng(8), 32, 36, groups, 0.4, (slice(8, 24), slice(8, 28)), 1.0,
+        0.5, n_headings, n)
     found = np.zeros((k, 4), np.int64)
     n_found, _ = branch_and_bound(bounds, shifts, groups, free, offsets, n, n_headings, 1, 0.01,
                                   0, 0, np.zeros((n_headings * 64, 5), np.int64),
                                   np.zeros((64, 5), np.int64), found)
     assert n_found == k
-    assert found[:, 0].tolist() == sorted(brute, reverse=True)[:k]
+    standable = brute[:, free[0] == 1]
+    assert found[:, 0].tolist() == sorted(standable.ravel().tolist(), reverse=True)[:k]
 
 
 def test_the_coarse_to_fine_search_answers_as_the_exhaustive_one(room):
@@ -130,9 +126,8 @@ def test_the_coarse_to_fine_search_answers_as_the_exhaustive_one(room):
         k = rng.integers(len(path))
         truth = path[k] + [rng.normal(0, 0.3), rng.normal(0, 0.3), rng.uniform(-np.pi, np.pi)]
         q = query(world, truth, rng)
-        n = select_query(q.buffer, q.count, 20.0, 0.2, 96, np.zeros((q.count, 2)))
-        pts = np.ascontiguousarray(select_query(q.buffer, q.count, 20.0, 0.2, 96,
-                                                out := np.zeros((q.count, 2))) and out[:n])
+        pts = np.zeros((q.count, 2))
+        n = select_query(q.buffer, q.count, 20.0, 0.2, 96, pts)
         two, one = relocalizer.search(pts, n), exact.search(pts, n)
         assert len(two) == len(one), (truth, two, one)
         for (p, s), (pe, se) in zip(two, one):
