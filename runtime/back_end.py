@@ -6,7 +6,10 @@ Each new node joins a queue of fixed capacity. Its search then runs as a chain o
 * ``SELECT``: the node's gated candidates (Alg. 7, steps 1–2; microseconds);
 * ``ALIGN``: one candidate's alignment with the submap around it and the inlier test (Alg. 5
   on the loop matcher);
-* ``CLOSE``: add the edge, optimise the graph, keep or undo it (the consistency test).
+* ``CLOSE``: add the edge, optimise the graph, keep or undo it (the consistency test);
+* ``WIDE``: when the node's candidates gave nothing and no closure was kept for
+  ``wide_after`` nodes, the wide search (:mod:`runtime.wide_loop_search`) over the old nodes'
+  map; its proposal, if any, is aligned and closed as a candidate is.
 
 ``work(clock, None)`` — the lockstep schedule — runs every pending slice now, so the whole of
 Alg. 7 happens in the tick that added the node. ``work(clock, budget_end)`` runs a slice only
@@ -31,9 +34,10 @@ from runtime.pose_graph import LOOP, PoseGraph
 from runtime.scan import PointScan
 from runtime.scan_matcher import ScanMatcher
 from runtime.sparse_ldl import FactorCapacityError
+from runtime.wide_loop_search import WideLoopSearch
 
-SELECT, ALIGN, CLOSE = 0, 1, 2
-SLICE_NAMES = ("select", "align", "close")
+SELECT, ALIGN, CLOSE, WIDE = 0, 1, 2, 3
+SLICE_NAMES = ("select", "align", "close", "wide")
 EDGES_FULL_STATUS = "capacity reached: no more loop closures"
 
 
@@ -46,17 +50,21 @@ class BackEnd:
         self.graph, self.nodes, self.information = graph, nodes, information
         self.optimizer = GaussNewton(graph, config.optimizer)
         self.loops = LoopCloser(lc)
+        self.wide = WideLoopSearch(lc, graph.max_nodes, config.sensor.max_points,
+                                   config.matcher.max_gap)
         self.matcher = ScanMatcher(replace(config.matcher, guess_window=lc.search_window),
                                    seed=seed)
         self.reference = self.matcher.new_reference()
         points = config.sensor.max_points
         self._scan = PointScan(points)
         self._submap = PointScan(points * (2 * lc.submap_nodes + 1))
+        self._members = np.zeros(2 * lc.submap_nodes + 1, np.int64)  # the submap's nodes
         self._saved_poses = np.zeros((graph.max_nodes, 3))
         self._image = np.zeros(lc.bearing_bins)
         self._state = np.zeros(points, np.int64)
         self._seen = np.zeros(2, np.int64)
         self._window = np.zeros(3)
+        self._wide_window = np.asarray(lc.wide_refine_window, dtype=np.float64)
         self.revision = 0  # bumped whenever a kept closure moved the optimised poses
         self.status = "ok"
         # The queue of nodes awaiting their search, and the search under way.
@@ -70,12 +78,15 @@ class BackEnd:
         self.phase = SELECT
         self.z = np.zeros(3)  # the aligned candidate's measurement, between ALIGN and CLOSE
         self.z_info = np.eye(3)  # and its information
-        self.cost = np.zeros(3)  # expected seconds per slice kind (decaying maximum)
+        self.widened = False  # the search under way has gone wide: its candidate is a proposal
+        self.guess = np.zeros(3)  # the proposal: the node's pose in the candidate's frame
+        self.last_closure = 0  # the last node closed with an old one (wide_min_gap back)
+        self.cost = np.zeros(len(SLICE_NAMES))  # expected seconds per slice kind (decaying max)
         self.waited = 0  # ticks the next slice has been deferred in a row
         self.enqueued = 0
         self.searched = 0  # node searches finished
         self.dropped = 0  # searches dropped from a full queue
-        self.slices = np.zeros(3, np.int64)
+        self.slices = np.zeros(len(SLICE_NAMES), np.int64)
         self.deferred = 0  # ticks that ended with back-end work left undone for lack of time
         self.forced = 0  # slices run over budget after waiting max_deferred_ticks
 
@@ -137,14 +148,24 @@ class BackEnd:
             self.next_candidate = 0
             self.phase = ALIGN
             if n == 0:
-                self._finish()
+                self._exhausted()
             return
         if self.edges_full():
             self._finish()
             return
+        if kind == WIDE:
+            proposal = self.wide.propose(self.graph.poses, self.nodes, self.node)
+            if proposal is None:
+                self._finish()
+                return
+            self.candidates[0], self.guess[:] = proposal
+            self.n_candidates, self.next_candidate = 1, 0
+            self.phase = ALIGN
+            return
         candidate = int(self.candidates[self.next_candidate])
         if kind == ALIGN:
-            z = self.align_loop(candidate, self.node)
+            z = (self.align_loop(candidate, self.node, self.guess, self._wide_window)
+                 if self.widened else self.align_loop(candidate, self.node))
             if z is None:
                 self._next_candidate()
             else:
@@ -160,11 +181,24 @@ class BackEnd:
         self.next_candidate += 1
         self.phase = ALIGN
         if self.next_candidate >= self.n_candidates:
+            self._exhausted()
+
+    def _exhausted(self) -> None:
+        """The node's candidates gave nothing: search widely if a long drift may hide its loop
+        (no closure with an old node kept for ``wide_after`` nodes), else the search is
+        done."""
+        lc = self.loops.config
+        if (not self.widened and lc.wide_after > 0
+                and self.node - self.last_closure >= lc.wide_after):
+            self.widened = True
+            self.phase = WIDE
+        else:
             self._finish()
 
     def _finish(self) -> None:
         self.node = -1
         self.phase = SELECT
+        self.widened = False
         self.searched += 1
 
     # ------------------------------------------------------------------ Alg. 7's steps
@@ -180,22 +214,36 @@ class BackEnd:
         """Steps 1–2: nearby nodes inside the 95% ellipse, closest first."""
         return self.loops.candidates(self.graph, self.nodes.cov, node)
 
-    def align_loop(self, candidate: int, node: int):
+    def align_loop(self, candidate: int, node: int, guess=None, window=None):
         """Step 3a: ``node``'s pose in ``candidate``'s frame by Alg. 5 against the submap
-        around the candidate, or None when the match ends at the edge of its box, or the
-        submap's surfaces hold too few of its points and its scans saw too little of where the
-        match puts them, or saw through too many."""
+        around the candidate — in a box around ``guess`` (default: the graph's estimate) of
+        half-widths ``window`` (default: :meth:`LoopCloser.window`) — or None when the match
+        ends at the edge of its box, or the submap's surfaces hold too few of its points and
+        its scans saw too little of where the match puts them, or saw through too many.
+
+        The submap: the candidate's scan and ``submap_nodes`` either side; for a wide search's
+        proposal (a ``guess`` given), the old nodes nearest to where it puts ``node``, the
+        map the proposal was found in."""
         loops = self.loops
         c = loops.config
         loops.attempts += 1
-        last = min(candidate + c.submap_nodes, node - c.exclude_recent)  # never node's neighbours
-        first, last = max(candidate - c.submap_nodes, 0), max(last, candidate)
-        submap = self.nodes.place(self.graph.poses, range(first, last + 1), candidate,
+        members = self._members
+        if guess is None:
+            last = min(candidate + c.submap_nodes, node - c.exclude_recent)  # not neighbours
+            first, last = max(candidate - c.submap_nodes, 0), max(last, candidate)
+            n_members = last - first + 1
+            for k in range(n_members):
+                members[k] = first + k
+        else:
+            n_members = self.wide.members(self.graph.poses, node, candidate, guess, members)
+        submap = self.nodes.place(self.graph.poses, members[:n_members], candidate,
                                   self._submap)
         reference = self.matcher.build_reference(submap, self.reference)
         scan = self.nodes.load(node, self._scan)
-        guess = relative_guess(self.graph, candidate, node)
-        window = self.loops.window(self.graph, self.nodes.cov, candidate, node, self._window)
+        if window is None:
+            guess = relative_guess(self.graph, candidate, node)
+            window = self.loops.window(self.graph, self.nodes.cov, candidate, node,
+                                       self._window)
         pose = self.matcher.align_scans(scan, reference, guess, window).pose
         if self._at_edge(pose, guess, window):  # the optimum lies at or beyond the box
             loops.rejected_match += 1
@@ -208,10 +256,18 @@ class BackEnd:
             degeneracy = Degeneracy(h, ratio, fc.degenerate_information)
             pose = degeneracy.remap(pose, guess)
             self.z_info[:] = degeneracy.information(self.z_info)
+        if not self.widened:
+            return self._submap_agrees(scan, reference, pose, candidate, members, n_members)
+        return pose  # a proposal: the wide search's own tests stand (runtime/wide_loop_search.py)
+
+    def _submap_agrees(self, scan, reference, pose, candidate, members, n_members):
+        """The ordinary loop match's tests: inliers on the submap, or what its scans saw."""
+        loops = self.loops
+        c = loops.config
         inliers = self.matcher.inlier_fraction(scan, reference, pose, c.inlier_distance,
                                                c.inlier_slope)
         seen = self._seen  # both tests always run: one cost per attempt, every kernel warm
-        visibility(self.nodes.points, self.nodes.counts, self.graph.poses, first, last,
+        visibility(self.nodes.points, self.nodes.counts, self.graph.poses, members, n_members,
                    candidate, scan.buffer, scan.count, float(pose[0]), float(pose[1]),
                    float(pose[2]), c.inlier_distance, c.inlier_slope, self._image, self._state,
                    seen)
@@ -247,6 +303,8 @@ class BackEnd:
         if loops.consistent(g, edge, total_before):
             loops.accepted += 1
             self.revision += 1
+            if node - candidate >= loops.config.wide_min_gap:  # a closure with the old map
+                self.last_closure = node
             return True
         g.remove_last_edge()
         g.poses[: g.n_nodes] = saved
@@ -269,6 +327,8 @@ class BackEnd:
             "queue": np.array(self.queued(), np.int64),
             "candidates": self.candidates[: self.n_candidates].copy(),
             "z": self.z.copy(), "z_info": self.z_info.copy(), "cost": self.cost.copy(),
+            "wide": self.wide.state(), "guess": self.guess.copy(),
+            "widened": self.widened, "last_closure": self.last_closure,
             "slices": self.slices.copy(),
             "node": self.node, "phase": self.phase, "next_candidate": self.next_candidate,
             "waited": self.waited, "enqueued": self.enqueued, "searched": self.searched,
@@ -297,6 +357,10 @@ class BackEnd:
         self.candidates[: self.n_candidates] = cand
         self.z[:], self.cost[:], self.slices[:] = state["z"], state["cost"], state["slices"]
         self.z_info[:] = state["z_info"]
+        self.wide.restore(state["wide"])
+        self.guess[:] = state["guess"]
+        self.widened = bool(state["widened"])
+        self.last_closure = int(state["last_closure"])
         self.node = node
         (self.phase, self.next_candidate, self.waited, self.enqueued, self.searched,
          self.dropped, self.deferred, self.forced, self.revision) = (

@@ -294,6 +294,33 @@ class LoopClosureConfig(Section):
     max_search_window: tuple[float, float, float] = _setting(
         (2.0, 2.0, 0.5), "largest half-widths: between the two, the box spans 3σ of the "
         "propagated relative pose", gt=0)
+    # The wide search after a long drift (runtime/wide_loop_search.py; docs/method.md §5).
+    wide_after: int = _setting(
+        10, "nodes since the last kept closure after which a node whose ordinary search found "
+        "nothing is searched for widely (0: never)", ge=0)
+    wide_min_gap: int = _setting(100, "nodes just behind the new one left out of the wide "
+                                 "search's map (they drifted with it)", ge=1)
+    wide_radius: float = _setting(30.0, "m: half-width of the square of positions searched "
+                                  "around the graph's estimate", gt=0)
+    wide_angle: float = _setting(0.5, "rad: headings searched either side of the estimate's",
+                                 gt=0)
+    wide_resolution: float = _setting(0.2, "m per cell of the wide search's hit grid", gt=0)
+    wide_hit_sigma: float = _setting(0.2, "m: a point this far from a surface scores e^(-1/2)",
+                                     gt=0)
+    wide_levels: int = _setting(6, "pyramid levels above the hit grid (blocks of 2^levels cells)",
+                                ge=1, le=10)
+    wide_query_range: float = _setting(12.0, "m: the node scan's points beyond are not used (it "
+                                       "also sets the heading step)", gt=0)
+    wide_query_points: int = _setting(128, "query points at most (thinned evenly)", ge=8)
+    wide_min_score: float = _setting(0.7, "mean hit value (0-1) a proposal needs", gt=0, le=1)
+    wide_ratio: float = _setting(0.9, "a distinct pose scoring this share of the best makes the "
+                                 "search refuse (a corridor, a repeated room)", gt=0, le=1)
+    wide_distinct_distance: float = _setting(1.0, "m: poses farther apart are distinct", gt=0)
+    wide_agreement: tuple[float, float] = _setting(
+        (0.5, 0.05), "m, rad: a proposal needs the previous node's search to have found the same "
+        "correction of the graph within these", gt=0)
+    wide_refine_window: tuple[float, float, float] = _setting(
+        (0.3, 0.3, 0.05), "half-widths of the swarm's alignment around a proposal", gt=0)
 
 
 @dataclass(frozen=True)

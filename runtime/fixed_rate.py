@@ -191,7 +191,10 @@ class SlamRuntime:
         c, scans = self.config, self.config.runtime.warm_up_scans
         scratch_config = override(c, {  # the same kernels on small buffers
             "capacity.max_nodes": 64, "capacity.max_edges": 256, "capacity.max_scans": scans + 1,
-            "matcher.grid_cells": min(c.matcher.grid_cells, 320)})
+            "matcher.grid_cells": min(c.matcher.grid_cells, 320),
+            # the wide loop search on every node whose ordinary search fails, on a small grid
+            "loop_closure.wide_after": 1, "loop_closure.wide_min_gap": 1,
+            "loop_closure.wide_radius": 2.0})
         scratch_config = replace(scratch_config, runtime=replace(
             c.runtime, schedule="lockstep", commit_memory=False))
         scratch = SlamRuntime(scratch_config, seed=self.seed)
@@ -203,6 +206,8 @@ class SlamRuntime:
             scratch.process(scan, odometry, float(k))
         if scratch.slam.loops_closed == 0:
             raise RuntimeError("warm-up closed no loop: the loop-closure kernels stay cold")
+        if scratch.slam.back_end.wide.searches == 0:
+            raise RuntimeError("warm-up ran no wide loop search: its kernels stay cold")
         if self.localizing:  # the global search and map tracking too
             self.slam.warm_up()
         return time.perf_counter() - t0

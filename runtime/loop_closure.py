@@ -92,19 +92,20 @@ def polar_image(points, count, image):
 
 
 @njit(cache=True)
-def visibility(points, counts, poses, first, last, frame, scan, n, x, y, t, tolerance, slope,
-               image, state, out):
-    """How the scans of nodes ``first..last`` saw the places where ``scan`` (at ``(x, y, t)`` in
-    node ``frame``'s frame) puts its points: ``out[0]`` points on a surface one of them saw
-    (within ``tolerance + slope·r``), ``out[1]`` points in space one of them saw through and
-    none saw a surface at — evidence against the alignment. Points no scan saw (behind what
-    they saw, or outside their view) count in neither (docs/method.md §5)."""
+def visibility(points, counts, poses, members, n_members, frame, scan, n, x, y, t, tolerance,
+               slope, image, state, out):
+    """How the scans of nodes ``members[:n_members]`` saw the places where ``scan`` (at
+    ``(x, y, t)`` in node ``frame``'s frame) puts its points: ``out[0]`` points on a surface
+    one of them saw (within ``tolerance + slope·r``), ``out[1]`` points in space one of them
+    saw through and none saw a surface at — evidence against the alignment. Points no scan
+    saw (behind what they saw, or outside their view) count in neither (docs/method.md §5)."""
     for k in range(n):
         state[k] = 0
     cf, sf = math.cos(poses[frame, 2]), math.sin(poses[frame, 2])
     ct, st = math.cos(t), math.sin(t)
     bins = image.shape[0]
-    for m in range(first, last + 1):
+    for e in range(n_members):
+        m = members[e]
         polar_image(points[m], counts[m], image)
         # node m's pose in the frame's frame, then the map from the frame into node m's
         dx, dy = poses[m, 0] - poses[frame, 0], poses[m, 1] - poses[frame, 1]

@@ -42,9 +42,10 @@ C_SCORE, C_LEVEL, C_HEADING, C_ROW, C_COL = range(5)
 
 
 @njit(cache=True)
-def render_hits(points, counts, poses, n_nodes, max_range, max_gap, ox, oy, res, sigma, d2,
-                hits):
-    """The hit grid of the node scans placed at ``poses`` (``d2``: scratch of its shape)."""
+def render_hits(points, counts, poses, index, n_index, max_range, max_gap, ox, oy, res, sigma,
+                d2, hits):
+    """The hit grid of the scans of nodes ``index[:n_index]`` placed at ``poses`` (``d2``:
+    scratch of its shape); the grid's cell ``(i, j)`` is the point ``(ox, oy) + (j, i)·res``."""
     ny, nx = hits.shape
     radius = 3.0 * sigma
     r2 = radius * radius
@@ -53,7 +54,8 @@ def render_hits(points, counts, poses, n_nodes, max_range, max_gap, ox, oy, res,
             d2[i, j] = r2
     gap2 = max_gap * max_gap
     reach2 = max_range * max_range
-    for m in range(n_nodes):
+    for e in range(n_index):
+        m = index[e]
         c, s = math.cos(poses[m, 2]), math.sin(poses[m, 2])
         n = counts[m]
         for p in range(n):
@@ -411,8 +413,8 @@ class PlaceMap:
         self.origin = lo  # cell (i, j) is the point origin + (j, i)·res
         pyramid = np.zeros((self.n_levels + 1, ny, nx), np.uint8)
         d2 = np.zeros((ny, nx))
-        render_hits(points, counts, poses, n_nodes, reach, max_gap, lo[0], lo[1], res,
-                    hit_sigma, d2, pyramid[0])
+        render_hits(points, counts, poses, np.arange(n_nodes), n_nodes, reach, max_gap, lo[0],
+                    lo[1], res, hit_sigma, d2, pyramid[0])
         pool_pyramid(pyramid)
         self.bounds = np.zeros((self.n_levels, ny, nx), np.uint8)
         pool_bounds(pyramid, self.shifts, self.bounds)

@@ -29,7 +29,7 @@ import numpy as np
 from runtime.writers import write_bytes_atomic
 
 FORMAT = "swarmslam-session"
-VERSION = 3  # 3: loop edges carry their own information; degenerate-match count
+VERSION = 4  # 4: the back end's wide loop search; 3: loop edges carry their own information
 ARRAY = "__array__"  # marks, in the meta, a leaf stored as an archive entry
 
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from runtime.back_end import BackEnd
+from runtime.back_end import SLICE_NAMES, BackEnd
 from runtime.config import SlamConfig
 from runtime.front_end import FrontEnd
 from runtime.localization import TRACKING, Localizer
@@ -154,8 +154,9 @@ class GraphSlam:
             "loops_accepted": self.loops_closed,
             "loop_searches": {"enqueued": b.enqueued, "done": b.searched, "pending": b.size
                               + (b.node >= 0), "dropped": b.dropped},
-            "back_end_slices": {"select": int(b.slices[0]), "align": int(b.slices[1]),
-                                "close": int(b.slices[2])},
+            "back_end_slices": {name: int(v) for name, v in zip(SLICE_NAMES, b.slices)},
+            "wide_searches": dict(zip(("searched", "proposed", "ambiguous", "at_edge",
+                                       "disagreed"), b.wide.counts())),
             "deferred_ticks": b.deferred,
             "forced_slices": b.forced,
         }

@@ -193,10 +193,11 @@ def test_visibility_counts_points_seen_on_surfaces_and_points_seen_through():
     counts = np.array([ring.count])
     poses = np.zeros((1, 3))
     image, state, out = np.zeros(720), np.zeros(ring.count, np.int64), np.zeros(2, np.int64)
-    visibility(points, counts, poses, 0, 0, 0, ring.buffer, ring.count, 0.0, 0.0, 0.0, 0.2,
-               0.01, image, state, out)
+    members = np.zeros(1, np.int64)  # node 0's scan
+    visibility(points, counts, poses, members, 1, 0, ring.buffer, ring.count, 0.0, 0.0, 0.0,
+               0.2, 0.01, image, state, out)
     assert out[0] == ring.count and out[1] == 0
     # moved 1 m: the points ahead land inside the room, where the beams passed
-    visibility(points, counts, poses, 0, 0, 0, ring.buffer, ring.count, -1.0, 0.0, 0.0, 0.2,
-               0.01, image, state, out)
+    visibility(points, counts, poses, members, 1, 0, ring.buffer, ring.count, -1.0, 0.0, 0.0,
+               0.2, 0.01, image, state, out)
     assert out[1] > 0.3 * ring.count

@@ -1,0 +1,220 @@
+"""The wide loop search (docs/method.md §5, "after a long drift"): where, within metres of the
+graph's estimate, does a new node's scan fit the map of the old nodes?
+
+After a long stretch with no closure the graph's estimate of a node returning to mapped ground
+may be many metres off — farther than the loop match's box (``search_window``) and the
+candidate radius reach (fr-clinic: 11.5 m after a 2,600 s loop). The ordinary search then finds
+nothing, or matches the scan to the wrong corridor nearby. Here the scans of the *old* nodes
+(more than ``wide_min_gap`` nodes back, within reach of the estimate) are rendered into a hit
+grid centred on the estimate, and an exhaustive branch and bound (the relocalization's,
+:func:`runtime.place_search.branch_and_bound`) scores the node's scan at every position within
+``wide_radius`` and every heading within ``wide_angle`` of it. The best pose is a *proposal*
+only if
+
+* it scores at least ``wide_min_score`` (mean hit value),
+* no distinct pose (farther than ``wide_distinct_distance``) scores ``wide_ratio`` of it — in a
+  corridor every position along it fits, and a closure there would be a guess,
+* it lies inside the window, not on its edge (the optimum could lie beyond),
+* the previous node's search found the same correction of the graph (the best pose less the
+  estimate) within ``wide_agreement``: two scans taken apart agree on where the robot is.
+
+The proposal then goes through the rest of the loop closure — the swarm's alignment against
+the old nodes nearest to it, the consistency test after optimising. The submap tests of the
+ordinary search (inliers, visibility) are not applied: a scan returning from a long drift
+often sees mapped ground only in part, and the search scored it against the whole old map.
+
+Every buffer is allocated here, sized by the configuration: a search allocates nothing.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from runtime.config import LoopClosureConfig
+from runtime.loop_closure import nearby_nodes
+from runtime.place_search import (
+    HIT_MAX,
+    branch_and_bound,
+    heading_step,
+    pool_bounds,
+    pool_pyramid,
+    render_hits,
+    rotate_query,
+    select_query,
+)
+from runtime.pose import between_nb, compose_nb, wrap_angle_nb
+
+
+@njit(cache=True)
+def nodes_within(poses, n_nodes, x, y, radius, out):
+    """Indices of nodes ``< n_nodes`` within ``radius`` of ``(x, y)``, in index order."""
+    count = 0
+    r2 = radius * radius
+    for k in range(n_nodes):
+        dx, dy = poses[k, 0] - x, poses[k, 1] - y
+        if dx * dx + dy * dy <= r2:
+            out[count] = k
+            count += 1
+    return count
+
+
+@njit(cache=True)
+def turn_points(points, n, angle, out):
+    """``points[:n]`` turned by ``angle`` about the origin, into ``out``."""
+    c, s = math.cos(angle), math.sin(angle)
+    for k in range(n):
+        x, y = points[k, 0], points[k, 1]
+        out[k, 0] = c * x - s * y
+        out[k, 1] = s * x + c * y
+
+
+@njit(cache=True)
+def open_window(free, half, cells):
+    """Level 0 of ``free``: 1 on the ``(2·cells + 1)²`` positions centred on cell
+    ``(half, half)``, 0 elsewhere."""
+    ny, nx = free.shape[1], free.shape[2]
+    for i in range(ny):
+        for j in range(nx):
+            free[0, i, j] = 1 if abs(i - half) <= cells and abs(j - half) <= cells else 0
+
+
+@njit(cache=True)
+def nearest_node(poses, index, n, x, y):
+    """The node of ``index[:n]`` nearest to ``(x, y)``."""
+    best, best_d2 = -1, np.inf
+    for e in range(n):
+        k = index[e]
+        d2 = (poses[k, 0] - x) ** 2 + (poses[k, 1] - y) ** 2
+        if d2 < best_d2:
+            best, best_d2 = k, d2
+    return best
+
+
+class WideLoopSearch:
+    """The search's grid, pyramid and query buffers (fixed at construction) and its counts."""
+
+    def __init__(self, config: LoopClosureConfig, max_nodes: int, max_points: int,
+                 max_gap: float):
+        c = self.config = config
+        res = c.wide_resolution
+        self.max_gap = max_gap
+        levels = c.wide_levels
+        top = 1 << levels
+        # The grid: the window, the query's reach beyond it and the hit blur, plus one top
+        # block so that a root block starting before the window still lies on the grid.
+        reach = c.wide_radius + c.wide_query_range + 3.0 * c.wide_hit_sigma
+        self.half = int(math.ceil(reach / res)) + top
+        n = 2 * self.half + 1
+        self.cells = int(math.floor(c.wide_radius / res))
+        self._pyramid = np.zeros((levels + 2, n, n), np.uint8)
+        self._d2 = np.zeros((n, n))
+        self.bounds = np.zeros((levels + 1, n, n), np.uint8)
+        self.free = np.zeros((levels + 1, n, n), np.uint8)
+        self.groups = np.ones(levels + 1, np.int64)  # one heading per block at every level
+        self.shifts = np.zeros(levels + 1, np.int64)
+        self.step = heading_step(res, c.wide_query_range)
+        self.n_headings = 2 * int(math.ceil(c.wide_angle / self.step)) + 1
+        self._query = np.zeros((max_points, 2))
+        self._turned = np.zeros((c.wide_query_points, 2))
+        self._offsets = np.zeros((self.n_headings, c.wide_query_points, 2), np.int64)
+        self._roots = np.zeros((self.n_headings * (-(-n // top)) ** 2, 5), np.int64)
+        self._stack = np.zeros((8 * (levels + 2), 5), np.int64)
+        self._found = np.zeros((2, 4), np.int64)  # the best and one rival are all we need
+        self._index = np.zeros(max_nodes, np.int64)
+        self._member_d2 = np.zeros(2 * c.submap_nodes + 1)
+        self.cell_radius = int(math.ceil(c.wide_distinct_distance / res))
+        self.searches = 0  # searches run (old nodes within reach)
+        self.proposed = 0  # proposals made
+        self.ambiguous = 0  # refused: a distinct pose scored nearly as well
+        self.at_edge = 0  # refused: the best lay on the window's edge
+        self.disagreed = 0  # refused: the previous node's search found another correction
+        self.last_node = -1  # the node of the last unique best, and the correction it found
+        self.correction = np.zeros(3)
+        self._z = np.zeros(3)  # the proposal's relative pose
+
+    def propose(self, poses, nodes, node: int):
+        """``(anchor, z)``: the old node nearest to where ``node``'s scan fits, and ``node``'s
+        pose in that node's frame — or None (no old node within reach, no pose scoring
+        ``wide_min_score``, a rival, or the best on the window's edge)."""
+        c = self.config
+        res = c.wide_resolution
+        distance, angle = c.wide_agreement
+        old = node - c.wide_min_gap
+        if old <= 0:
+            return None
+        x, y, t = float(poses[node, 0]), float(poses[node, 1]), float(poses[node, 2])
+        n_old = nodes_within(poses, old, x, y, c.wide_radius + c.wide_query_range, self._index)
+        n_query = select_query(nodes.points[node], nodes.counts[node], c.wide_query_range, res,
+                               c.wide_query_points, self._query)
+        if n_old == 0 or n_query < 3:
+            return None
+        self.searches += 1
+        half = self.half
+        ox, oy = x - half * res, y - half * res  # the estimate is cell (half, half)
+        render_hits(nodes.points, nodes.counts, poses, self._index, n_old, c.wide_query_range
+                    + c.wide_radius, self.max_gap, ox, oy, res, c.wide_hit_sigma, self._d2,
+                    self._pyramid[0])
+        pool_pyramid(self._pyramid)
+        pool_bounds(self._pyramid, self.shifts, self.bounds)
+        open_window(self.free, half, self.cells)
+        pool_pyramid(self.free)
+        first = t - c.wide_angle  # heading a is first + a·step
+        turn_points(self._query, n_query, first, self._turned)
+        rotate_query(self._turned, n_query, res, self.step, self.n_headings, self._offsets)
+        min_score = int(math.ceil(c.wide_min_score * HIT_MAX * n_query))
+        n_found, _ = branch_and_bound(self.bounds, self.shifts, self.groups, self.free,
+                                      self._offsets, n_query, self.n_headings, min_score,
+                                      c.wide_ratio, self.cell_radius, self.n_headings,
+                                      self._roots, self._stack, self._found)
+        if n_found == 0:
+            return None
+        if n_found > 1:
+            self.ambiguous += 1
+            return None
+        _, a, i, j = (int(v) for v in self._found[0])
+        if (a in (0, self.n_headings - 1) or abs(i - half) >= self.cells
+                or abs(j - half) >= self.cells):
+            self.at_edge += 1
+            return None
+        bx, by, bt = ox + j * res, oy + i * res, first + a * self.step
+        px, py, pt = compose_nb(*self.correction, x, y, t)  # where the last correction puts it
+        agrees = (self.last_node == node - 1 and math.hypot(px - bx, py - by) <= distance
+                  and abs(wrap_angle_nb(pt - bt)) <= angle)
+        self.last_node = node
+        # the correction C with C ⊕ estimate = best: best ⊕ estimate⁻¹
+        self.correction[:] = compose_nb(bx, by, bt, *between_nb(0.0, 0.0, 0.0, x, y, t))
+        if not agrees:
+            self.disagreed += 1
+            return None
+        anchor = nearest_node(poses, self._index, n_old, bx, by)
+        self.proposed += 1
+        self._z[:] = between_nb(bx, by, bt, poses[anchor, 0], poses[anchor, 1], poses[anchor, 2])
+        return anchor, self._z
+
+    def members(self, poses, node: int, anchor: int, z, out) -> int:
+        """The old nodes (as many as ``out`` holds) nearest to where ``z`` in ``anchor``'s
+        frame puts ``node``, nearest first: the submap a proposal is aligned with. Returns how
+        many."""
+        c = math.cos(poses[anchor, 2])
+        s = math.sin(poses[anchor, 2])
+        x = poses[anchor, 0] + c * z[0] - s * z[1]
+        y = poses[anchor, 1] + s * z[0] + c * z[1]
+        reach = self.config.wide_radius + self.config.wide_query_range
+        return nearby_nodes(poses, node, x, y, reach, node - self.config.wide_min_gap, out,
+                            self._member_d2[: out.shape[0]])
+
+    def state(self) -> dict:
+        return {"counts": np.array(self.counts(), np.int64), "last_node": self.last_node,
+                "correction": self.correction.copy()}
+
+    def counts(self) -> list[int]:
+        return [self.searches, self.proposed, self.ambiguous, self.at_edge, self.disagreed]
+
+    def restore(self, state: dict) -> None:
+        (self.searches, self.proposed, self.ambiguous, self.at_edge,
+         self.disagreed) = (int(v) for v in state["counts"])
+        self.last_node = int(state["last_node"])
+        self.correction[:] = state["correction"]

@@ -1,0 +1,102 @@
+"""The wide loop search (runtime.wide_loop_search): a node returning to mapped ground after a
+long drift is placed by the search over the old nodes' map, and refused where a corridor makes
+the place ambiguous."""
+
+import math
+import tracemalloc
+
+import numpy as np
+import pytest
+
+from runtime.config import SlamConfig, override
+from runtime.node_scans import NodeScans
+from runtime.pose import compose
+from runtime.scan import PointScan
+from runtime.warm_up import room_world, scan_at
+from runtime.wide_loop_search import WideLoopSearch
+
+ANGLES = np.linspace(-np.pi, np.pi, 360, endpoint=False)
+CONFIG = override(SlamConfig(), {"loop_closure.wide_min_gap": 5})
+DRIFT = np.array([6.0, -4.0, 0.2])  # what a long loop did to the graph's estimate of the return
+
+
+def graph_of(world, truth, drifted_from: int):
+    """Node scans at the true poses; the graph's estimate of node ``drifted_from`` and after
+    is off by ``DRIFT`` (a rigid correction of the map frame)."""
+    nodes = NodeScans(len(truth), len(ANGLES))
+    scan = PointScan(len(ANGLES))
+    for k, p in enumerate(truth):
+        scan.set_ranges(scan_at(world, p, ANGLES, 12.0), ANGLES, 0.05, 12.0)
+        nodes.store(k, scan)
+    poses = np.array(truth, np.float64)
+    poses[drifted_from:] = compose(DRIFT, poses[drifted_from:])
+    return poses, nodes
+
+
+def search():
+    c = CONFIG
+    return WideLoopSearch(c.loop_closure, 64, c.sensor.max_points, c.matcher.max_gap)
+
+
+@pytest.fixture(scope="module")
+def building():
+    """A 30 × 20 m room full of boxes: the robot maps a row, drives off and comes back."""
+    world = room_world(3, size=(30.0, 20.0), boxes=40, walls=3)
+    xs = np.linspace(3.0, 27.0, 12)
+    back = (10.0, 8.5, 7.0, 5.5)  # returning past the first nodes, the other way
+    truth = [(x, 10.0, 0.0) for x in xs] + [(x, 10.2, math.pi) for x in back]
+    return world, np.array(truth)
+
+
+def test_a_return_after_a_long_drift_is_placed_where_its_scan_fits(building):
+    world, truth = building
+    poses, nodes = graph_of(world, truth, 12)
+    wide = search()
+    assert wide.propose(poses, nodes, 12) is None  # one scan alone proposes nothing
+    assert wide.disagreed == 1 and wide.searches == 1
+    found = wide.propose(poses, nodes, 13)  # the next agrees: a proposal
+    assert found is not None and wide.proposed == 1
+    anchor, z = found
+    assert anchor < 13 - CONFIG.loop_closure.wide_min_gap
+    placed = compose(truth[anchor], z)  # the old node is where it was mapped
+    assert math.hypot(*(placed[:2] - truth[13, :2])) < 0.3
+    assert abs(placed[2] - truth[13, 2] + 2 * math.pi * round((truth[13, 2] - placed[2])
+                                                              / (2 * math.pi))) < 0.03
+
+
+def test_disagreeing_consecutive_searches_propose_nothing(building):
+    world, truth = building
+    poses, nodes = graph_of(world, truth, 12)
+    poses[13] = compose([0.0, 1.5, 0.0], poses[13])  # the next node drifted another 1.5 m
+    wide = search()
+    assert wide.propose(poses, nodes, 12) is None
+    assert wide.propose(poses, nodes, 13) is None
+    assert wide.disagreed == 2 and wide.proposed == 0
+
+
+def test_a_featureless_corridor_is_ambiguous_not_a_closure():
+    world = np.array([[0.0, 0.0, 80.0, 0.0], [0.0, 3.0, 80.0, 3.0]])  # two long walls
+    truth = np.array([(x, 1.5, 0.0) for x in np.arange(20.0, 60.0, 2.0)])
+    poses, nodes = graph_of(world, truth, len(truth) - 2)
+    wide = search()
+    for node in (len(truth) - 2, len(truth) - 1):
+        assert wide.propose(poses, nodes, node) is None
+    assert wide.ambiguous == 2 and wide.proposed == 0
+
+
+def test_a_search_allocates_nothing_after_the_first(building):
+    world, truth = building
+    poses, nodes = graph_of(world, truth, 12)
+    wide = search()
+    wide.propose(poses, nodes, 12)
+    wide.propose(poses, nodes, 13)
+    tracemalloc.start()
+    try:
+        before, _ = tracemalloc.get_traced_memory()
+        for node in (12, 13, 14, 15):
+            wide.propose(poses, nodes, node)
+        after, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert wide.proposed >= 3
+    assert after - before <= 256 and peak - before < 4096, (after - before, peak - before)
