@@ -7,8 +7,8 @@ Each new node joins a queue of fixed capacity. Its search then runs as a chain o
 * ``ALIGN``: one candidate's alignment with the submap around it and the inlier test (Alg. 5
   on the loop matcher);
 * ``CLOSE``: add the edge, optimise the graph, keep or undo it (the consistency test);
-* ``WIDE``: when the node's candidates gave nothing and no closure was kept for
-  ``wide_after`` nodes, the wide search (:mod:`runtime.wide_loop_search`) over the old nodes'
+* ``WIDE``: when the node's candidates gave nothing and no closure with an old node was kept
+  for ``wide_after`` nodes, the wide search (:mod:`runtime.wide_loop_search`) over the old nodes'
   map; its proposal, if any, is aligned and closed as a candidate is.
 
 ``work(clock, None)`` — the lockstep schedule — runs every pending slice now, so the whole of
@@ -221,14 +221,16 @@ class BackEnd:
         ends at the edge of its box, or the submap's surfaces hold too few of its points and
         its scans saw too little of where the match puts them, or saw through too many.
 
-        The submap: the candidate's scan and ``submap_nodes`` either side; for a wide search's
-        proposal (a ``guess`` given), the old nodes nearest to where it puts ``node``, the
-        map the proposal was found in."""
+        The submap: the candidate's scan and ``submap_nodes`` either side. A ``guess`` given is
+        a wide search's proposal: the submap is then the old nodes nearest to where it puts
+        ``node`` (the map the proposal was found in) and the submap tests are left to the
+        search's own (docs/method.md §5, step 5)."""
         loops = self.loops
         c = loops.config
         loops.attempts += 1
         members = self._members
-        if guess is None:
+        proposal = guess is not None
+        if not proposal:
             last = min(candidate + c.submap_nodes, node - c.exclude_recent)  # not neighbours
             first, last = max(candidate - c.submap_nodes, 0), max(last, candidate)
             n_members = last - first + 1
@@ -240,8 +242,9 @@ class BackEnd:
                                   self._submap)
         reference = self.matcher.build_reference(submap, self.reference)
         scan = self.nodes.load(node, self._scan)
-        if window is None:
+        if not proposal:
             guess = relative_guess(self.graph, candidate, node)
+        if window is None:
             window = self.loops.window(self.graph, self.nodes.cov, candidate, node,
                                        self._window)
         pose = self.matcher.align_scans(scan, reference, guess, window).pose
@@ -256,9 +259,9 @@ class BackEnd:
             degeneracy = Degeneracy(h, ratio, fc.degenerate_information)
             pose = degeneracy.remap(pose, guess)
             self.z_info[:] = degeneracy.information(self.z_info)
-        if not self.widened:
-            return self._submap_agrees(scan, reference, pose, candidate, members, n_members)
-        return pose  # a proposal: the wide search's own tests stand (runtime/wide_loop_search.py)
+        if proposal:
+            return pose  # the wide search's own tests stand (runtime/wide_loop_search.py)
+        return self._submap_agrees(scan, reference, pose, candidate, members, n_members)
 
     def _submap_agrees(self, scan, reference, pose, candidate, members, n_members):
         """The ordinary loop match's tests: inliers on the submap, or what its scans saw."""

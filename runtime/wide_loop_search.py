@@ -138,7 +138,8 @@ class WideLoopSearch:
     def propose(self, poses, nodes, node: int):
         """``(anchor, z)``: the old node nearest to where ``node``'s scan fits, and ``node``'s
         pose in that node's frame — or None (no old node within reach, no pose scoring
-        ``wide_min_score``, a rival, or the best on the window's edge)."""
+        ``wide_min_score``, a rival, the best on the window's edge, or the previous node's
+        search finding another correction)."""
         c = self.config
         res = c.wide_resolution
         distance, angle = c.wide_agreement
