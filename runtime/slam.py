@@ -155,8 +155,7 @@ class GraphSlam:
             "loop_searches": {"enqueued": b.enqueued, "done": b.searched, "pending": b.size
                               + (b.node >= 0), "dropped": b.dropped},
             "back_end_slices": {name: int(v) for name, v in zip(SLICE_NAMES, b.slices)},
-            "wide_searches": dict(zip(("searched", "proposed", "ambiguous", "at_edge",
-                                       "disagreed"), b.wide.counts())),
+            "wide_searches": b.wide.counts(),
             "deferred_ticks": b.deferred,
             "forced_slices": b.forced,
         }

@@ -207,12 +207,15 @@ class WideLoopSearch:
         return nearby_nodes(poses, node, x, y, reach, node - self.config.wide_min_gap, out,
                             self._member_d2[: out.shape[0]])
 
-    def state(self) -> dict:
-        return {"counts": np.array(self.counts(), np.int64), "last_node": self.last_node,
-                "correction": self.correction.copy()}
+    def counts(self) -> dict:
+        """The searches run and how they ended, by name (a run's report)."""
+        return {"searched": self.searches, "proposed": self.proposed,
+                "ambiguous": self.ambiguous, "at_edge": self.at_edge,
+                "disagreed": self.disagreed}
 
-    def counts(self) -> list[int]:
-        return [self.searches, self.proposed, self.ambiguous, self.at_edge, self.disagreed]
+    def state(self) -> dict:
+        return {"counts": np.array(list(self.counts().values()), np.int64),
+                "last_node": self.last_node, "correction": self.correction.copy()}
 
     def restore(self, state: dict) -> None:
         (self.searches, self.proposed, self.ambiguous, self.at_edge,
