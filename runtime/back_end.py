@@ -296,14 +296,15 @@ class BackEnd:
         saved = self._saved_poses[: g.n_nodes]
         saved[:] = g.poses[: g.n_nodes]
         edge = g.add_edge(candidate, node, z, self.z_info, LOOP)
-        try:
-            self.optimizer.optimize(exempt=edge)  # on trial: judged at its full weight
+        try:  # on trial: judged at its full weight; one Gauss–Newton does not absorb is
+            # refused without the Levenberg–Marquardt restart (a deadline's worth of steps)
+            settled = self.optimizer.optimize(exempt=edge, fallback=False).converged
         except FactorCapacityError as exc:  # the graph as it was; localising goes on
             g.remove_last_edge()
             g.poses[: g.n_nodes] = saved
             self.status = f"capacity reached: {exc}"
             return False
-        if loops.consistent(g, edge, total_before):
+        if settled and loops.consistent(g, edge, total_before):
             loops.accepted += 1
             self.revision += 1
             if node - candidate >= loops.config.wide_min_gap:  # a closure with the old map

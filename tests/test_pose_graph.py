@@ -126,6 +126,18 @@ def test_zero_iterations_leaves_the_graph_as_it_was():
     assert np.array_equal(g.poses[: g.n_nodes], before)
 
 
+def test_without_fallback_an_unsettled_optimisation_restores_the_poses():
+    # A closure on trial that Gauss-Newton does not absorb in max_iterations is refused: no
+    # Levenberg-Marquardt restart, the poses as they were, the report says so.
+    g, _ = noisy_loop_graph()
+    before = g.poses[: g.n_nodes].copy()
+    report = GaussNewton(g, max_iterations=1).optimize(fallback=False)
+    assert not report.converged and report.iterations == 1
+    assert np.array_equal(g.poses[: g.n_nodes], before)
+    settled = GaussNewton(g).optimize(fallback=False)  # enough steps: converged as before
+    assert settled.converged and settled.chi2 < 12.8
+
+
 def test_swapping_an_edge_is_seen_by_the_cached_solver():
     # A rejected loop edge is removed and another candidate's added: the counts are the same
     # as before, the sparsity pattern is not. The reused optimizer must match a fresh one.
