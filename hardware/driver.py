@@ -27,6 +27,13 @@ from hardware.models import model as get_model
 from hardware.rotation import Rotations
 from hardware.stream import CapsuleStream, NodeStream, StreamStats, find_descriptor
 
+try:  # a port that vanishes mid-call fails in termios, which is not an OSError
+    from termios import error as _termios_error
+
+    PORT_ERRORS: tuple = (serial.SerialException, OSError, _termios_error)
+except ImportError:  # no termios (Windows)
+    PORT_ERRORS = (serial.SerialException, OSError)
+
 
 class LidarError(OSError):
     """The scanner did not answer as the protocol says (names the request and what came)."""
@@ -53,8 +60,19 @@ class RPLidar:
 
     # ------------------------------------------------------------------ connection
     def connect(self) -> None:
-        self.serial = serial.Serial(self.port, self.baud, timeout=0.05, write_timeout=self.timeout)
-        self.serial.reset_input_buffer()
+        """Open the port; :class:`LidarError` naming it if it cannot be opened or set up."""
+        try:
+            self.serial = serial.Serial(self.port, self.baud, timeout=0.05,
+                                        write_timeout=self.timeout)
+            self.serial.reset_input_buffer()
+        except PORT_ERRORS as exc:
+            if self.serial is not None:
+                try:
+                    self.serial.close()
+                except PORT_ERRORS:
+                    pass
+                self.serial = None
+            raise self._port_lost(exc) from None
 
     def close(self) -> None:
         """Stop scanning and the motor (best effort), then close the port."""
@@ -62,7 +80,7 @@ class RPLidar:
         if self.serial is not None:
             try:
                 self.stop_motor()
-            except (serial.SerialException, OSError):
+            except PORT_ERRORS:
                 pass
             self.serial.close()
             self.serial = None
@@ -76,13 +94,29 @@ class RPLidar:
 
     # ------------------------------------------------------------------ requests (B1–B3)
     def send(self, command: int, payload: bytes = b"") -> None:
-        self.serial.write(p.encode_request(command, payload))
-        self.serial.flush()
+        try:
+            self.serial.write(p.encode_request(command, payload))
+            self.serial.flush()
+        except PORT_ERRORS as exc:
+            raise self._port_lost(exc) from None
+
+    def _port_lost(self, exc) -> LidarError:
+        """A port error as a :class:`LidarError` naming the port (termios's is no OSError)."""
+        if isinstance(exc, LidarError):
+            return exc
+        detail = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
+        return LidarError(f"{self.port}: the port failed: {detail}")
 
     def request(self, command: int, payload: bytes = b"", answer: int | None = None,
                 length: int | None = None) -> bytes:
         """Send a request and read its single response; :class:`LidarError` on silence or a
         wrong descriptor."""
+        try:
+            return self._request(command, payload, answer, length)
+        except PORT_ERRORS as exc:
+            raise self._port_lost(exc) from None
+
+    def _request(self, command, payload, answer, length) -> bytes:
         name = f"request 0x{command:02X}"
         with self._lock:
             if self.mode is not None:
@@ -192,7 +226,7 @@ class RPLidar:
                 self.send(p.STOP)
                 time.sleep(0.1)  # the SDK waits 100 ms after STOP
                 self.serial.reset_input_buffer()
-            except (serial.SerialException, OSError):
+            except PORT_ERRORS:
                 pass
         self.mode = None
 
@@ -223,7 +257,7 @@ class RPLidar:
         while not self._stop.is_set():
             try:
                 data = self.serial.read(max(1, self.serial.in_waiting))
-            except (serial.SerialException, OSError, TypeError, AttributeError):
+            except (*PORT_ERRORS, TypeError, AttributeError):
                 parser = self._reconnect(mode)  # the port vanished
                 last_data = time.monotonic()
                 continue
@@ -237,7 +271,7 @@ class RPLidar:
                     self.mode = None
                     self.send(p.STOP)
                     parser = self._start_scan(mode)
-                except (LidarError, serial.SerialException, OSError):
+                except PORT_ERRORS:
                     pass
                 last_data = time.monotonic()
         self.stats.rotations = self.rotations.rotations
@@ -247,14 +281,14 @@ class RPLidar:
         self.mode = None
         try:
             self.serial.close()
-        except (serial.SerialException, OSError, AttributeError):
+        except (*PORT_ERRORS, AttributeError):
             pass
         while not self._stop.is_set():
             try:
                 self.connect()
                 self.start_motor()
                 return self._start_scan(mode)
-            except (serial.SerialException, OSError, LidarError):
+            except PORT_ERRORS:
                 self._stop.wait(self.retry)
         return NodeStream(self.rotations, self.stats)  # stopping: an idle parser
 

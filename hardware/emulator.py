@@ -47,6 +47,16 @@ class Faults:
     vanish_after: float = 0.0  # s of streaming before the port vanishes (0: never)
     vanish_for: float = 0.5  # s until it comes back
 
+    def __post_init__(self):
+        for name in ("garbage", "corrupt"):
+            v = getattr(self, name)
+            if not 0.0 <= v <= 1.0:  # NaN fails too
+                raise ValueError(f"{name} is a probability in [0, 1], got {v}")
+        for name in ("stall_every", "stall_for", "vanish_after", "vanish_for"):
+            v = getattr(self, name)
+            if not (v >= 0.0 and math.isfinite(v)):
+                raise ValueError(f"{name} is seconds ≥ 0, got {v}")
+
     @classmethod
     def parse(cls, text: str) -> Faults:
         """``garbage=0.01,corrupt=0.01,stall=10:2,vanish=30:1`` (stall/vanish: every:for)."""
@@ -65,7 +75,10 @@ class Faults:
             except ValueError as exc:
                 raise ValueError(f"--faults {item!r}: {exc} (use e.g. garbage=0.01,corrupt=0.01,"
                                  "stall=10:2,vanish=30:1)") from None
-        return cls(**values)
+        try:
+            return cls(**values)
+        except ValueError as exc:
+            raise ValueError(f"--faults {text!r}: {exc}") from None
 
 
 class VirtualRPLidar:

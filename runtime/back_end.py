@@ -352,6 +352,9 @@ class BackEnd:
         node = int(state["node"])
         if any(not 0 <= int(v) < n for v in (*queue, *cand)) or not -1 <= node < n:
             raise ValueError("the loop search refers to nodes that do not exist")
+        if (not SELECT <= int(state["phase"]) <= WIDE
+                or not 0 <= int(state["next_candidate"]) <= len(cand)):
+            raise ValueError("the loop search is in a state it never takes")
         self.matcher.restore(state["matcher"])
         (self.loops.attempts, self.loops.accepted, self.loops.rejected_match,
          self.loops.rejected_consistency) = (int(v) for v in state["loops"])

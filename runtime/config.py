@@ -207,6 +207,20 @@ class SensorConfig(Section):
 
 
 @dataclass(frozen=True)
+class InputConfig(Section):
+    """What a record must be to be used (docs/runtime.md §7): odometry further than a robot
+    moves between two readings is dropped from its scan, counted."""
+
+    KEY = "input"
+    max_speed: float = _setting(5.0, "m/s: odometry moving faster between two readings jumped",
+                                gt=0)
+    max_turn_rate: float = _setting(6.0, "rad/s: odometry turning faster jumped", gt=0)
+    jump_slack: float = _setting(0.5, "m allowed on top of max_speed × the time between "
+                                 "readings (clock jitter, readings at one instant)", ge=0)
+    turn_slack: float = _setting(0.5, "rad allowed on top of max_turn_rate × the time", ge=0)
+
+
+@dataclass(frozen=True)
 class CapacityConfig(Section):
     """What grows with time, fixed at start-up (docs/runtime.md §4)."""
 
@@ -477,6 +491,8 @@ class RuntimeConfig(Section):
     commit_memory: bool | None = _setting(
         None, "back every buffer with memory at start-up (none: when budgeted)")
     warm_up_scans: int = _setting(120, "synthetic scans the warm-up runs", ge=10)
+    autosave_seconds: float = _setting(60.0, "s between session autosaves of a live run "
+                                       "(written beside the loop, atomically; 0: none)", ge=0)
 
     def __post_init__(self):
         super().__post_init__()
@@ -495,6 +511,7 @@ class SlamConfig(Section):
 
     KEY = ""
     sensor: SensorConfig = _section(SensorConfig, "the scanner")
+    input: InputConfig = _section(InputConfig, "what a record must be to be used")
     capacity: CapacityConfig = _section(CapacityConfig, "capacities fixed at start-up")
     front_end: FrontEndConfig = _section(FrontEndConfig, "tracking and node insertion")
     matcher: MatcherConfig = _section(MatcherConfig, "the scan matcher (Alg. 5)")

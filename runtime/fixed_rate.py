@@ -34,7 +34,7 @@ from dataclasses import replace
 import numpy as np
 
 from runtime import session
-from runtime.config import SlamConfig, from_dict, override, to_dict
+from runtime.config import SensorConfig, SlamConfig, from_dict, override, to_dict
 from runtime.inbox import ScanInbox
 from runtime.localization import Localizer
 from runtime.map_tracking import SavedMap
@@ -125,6 +125,14 @@ def commit_memory(root, min_bytes: int = 1 << 16) -> int:
     return total
 
 
+def merged_sensor(saved: SensorConfig, now: SensorConfig) -> SensorConfig:
+    """The sensor section to resume a session with when the scanner differs from the one it
+    was recorded with: the new scanner's ranges and name, and room for the larger of the two
+    scans (a smaller buffer would cut every new rotation short; the stored node scans must
+    fit too)."""
+    return replace(now, max_points=max(saved.max_points, now.max_points))
+
+
 class SlamRuntime:
     """One class for the simulator, the serial driver and log replay (see module doc)."""
 
@@ -140,12 +148,15 @@ class SlamRuntime:
         self.seed = seed
         self.clock = clock
         sensor = self.config.sensor
-        self.inbox = ScanInbox(sensor.max_points, sensor.min_range, sensor.max_range)
+        self.inbox = ScanInbox(sensor.max_points, sensor.min_range, sensor.max_range,
+                               self.config.input)
         self.stats = RuntimeStats(rc.latency_window)
         self.scan = PointScan(sensor.max_points)
         self.odometry = np.zeros(3)
         self.front_end_cost = 0.0  # s per tick at the full evaluation budget (running mean)
         self.last: StepResult | None = None
+        self.session_note = ""  # what resuming a session had to change, for the user
+        self.autosave: session.Autosave | None = None  # set by run(autosave=...)
         # A robot commits its capacities now; a simulator making an env per episode need not.
         commit = rc.commit_memory if rc.commit_memory is not None else rc.schedule == "budgeted"
         self.reserved_bytes = commit_memory(self) if commit else 0
@@ -222,11 +233,17 @@ class SlamRuntime:
         before saving a map). Returns the slices run."""
         return self.slam.drain(self.clock)
 
-    def run(self, stop: threading.Event, max_ticks: int | None = None, on_tick=None) -> None:
+    def run(self, stop: threading.Event, max_ticks: int | None = None, on_tick=None,
+            autosave=None) -> None:
         """The fixed-rate loop: a tick every period until ``stop`` is set. A tick that overruns
         its deadline is counted; the schedule then skips to the next period boundary instead
-        of bunching late ticks together."""
+        of bunching late ticks together. ``autosave``: a session file written every
+        ``runtime.autosave_seconds`` (:class:`runtime.session.Autosave`) while mapping."""
         period = self.config.runtime.period
+        saver = None
+        if autosave is not None and not self.localizing:
+            saver = session.Autosave(autosave, self.config.runtime.autosave_seconds, self.clock)
+        self.autosave = saver
         next_start = self.clock()
         done = 0
         while not stop.is_set() and (max_ticks is None or done < max_ticks):
@@ -235,6 +252,8 @@ class SlamRuntime:
                 break
             result = self.tick(deadline=next_start + period)
             done += 1
+            if saver is not None:
+                saver.maybe(self.state)  # between ticks, in the time left of this period
             if on_tick is not None:
                 on_tick(self, result)
             next_start += period
@@ -277,8 +296,10 @@ class SlamRuntime:
     def report(self) -> dict:
         """Statistics a person or a benchmark wants: rate, latency, misses, SLAM, capacity."""
         out = self.stats.summary()
-        out.update({"stale_scans": self.inbox.stale, "empty_scans": self.inbox.empty,
-                    **self.slam.report(), "status": self.status})
+        out.update({**self.inbox.counts(), **self.slam.report(), "status": self.status})
+        if self.autosave is not None:
+            out.update({"autosaves": self.autosave.saves,
+                        "autosave_error": self.autosave.error})
         return out
 
     # ------------------------------------------------------------------ sessions
@@ -308,12 +329,14 @@ class SlamRuntime:
 
     @classmethod
     def resume(cls, path, clock=time.perf_counter, anywhere: bool = False,
-               changes: dict | None = None, more_scans: int = 0) -> SlamRuntime:
+               changes: dict | None = None, more_scans: int = 0,
+               sensor: SensorConfig | None = None) -> SlamRuntime:
         """A runtime continuing the session saved at ``path``. ``anywhere``: the new run may
         start at any place in the saved map — it is localized first, then joined to the graph
         (multi-session mapping, :meth:`GraphSlam.rejoin`). ``changes``: configuration
         overrides (dotted keys). ``more_scans``: the trajectory keeps the saved scans' poses and
-        this many more (its capacity grows if need be)."""
+        this many more (its capacity grows if need be). ``sensor``: the scanner the run reads
+        now, if it may differ from the session's (see :func:`merged_sensor`)."""
 
         def build(state, config):
             kept = len(state["slam"]["front_end"]["scan_node"]) + more_scans
@@ -325,27 +348,40 @@ class SlamRuntime:
                 runtime.slam.rejoin(runtime.seed)
             return runtime
 
-        return cls._from_session(path, build, changes)
+        return cls._from_session(path, build, changes, sensor)
 
     @classmethod
     def localize(cls, path, initial_pose=None, clock=time.perf_counter,
-                 changes: dict | None = None) -> SlamRuntime:
+                 changes: dict | None = None, sensor: SensorConfig | None = None
+                 ) -> SlamRuntime:
         """Localization mode in the map saved at ``path`` (read, never written): from
-        ``initial_pose`` if known, else the global search finds it."""
+        ``initial_pose`` if known, else the global search finds it. ``sensor``: as in
+        :meth:`resume`."""
 
         def build(state, config):
             saved = SavedMap.from_state(state["slam"], config.sensor.max_points)
             return cls(config, seed=int(state["seed"]), initial_pose=initial_pose, clock=clock,
                        saved_map=saved)
 
-        return cls._from_session(path, build, changes)
+        return cls._from_session(path, build, changes, sensor)
 
     @staticmethod
-    def _from_session(path, build, changes):
+    def _from_session(path, build, changes, sensor=None):
         state = session.read_session(path)
         try:
             config = from_dict(state["config"])
-            return build(state, override(config, changes) if changes else config)
+            config = override(config, changes) if changes else config
+            note = ""
+            if sensor is not None and sensor != config.sensor:
+                merged = merged_sensor(config.sensor, sensor)
+                note = (f"the session was recorded with {config.sensor.name} "
+                        f"({config.sensor.max_points} points per scan); re-sized for "
+                        f"{sensor.name}: {merged.max_points} points, ranges "
+                        f"{merged.min_range:g}–{merged.max_range:g} m")
+                config = replace(config, sensor=merged)
+            runtime = build(state, config)
+            runtime.session_note = note
+            return runtime
         except KeyError as exc:
             raise session.SessionError(f"{path}: missing field {exc.args[0]!r}") from None
         except (ValueError, IndexError, TypeError) as exc:

@@ -240,8 +240,9 @@ class FrontEnd:
         return max((pose, wide), key=lambda p: self._inliers(scan, p))
 
     def _predicted_motion(self, odometry):
-        if odometry is None:
-            return self.motion  # scans only: assume the last motion continues
+        if odometry is None:  # scans only, or a reading the inbox dropped (docs/runtime.md
+            self.have_odometry = False  # §7): the next reading starts odometry afresh
+            return self.motion  # assume the last motion continues
         delta = odometry_motion(odometry, self.last_odometry, self.have_odometry)
         self.have_odometry = True
         return delta

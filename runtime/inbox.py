@@ -5,21 +5,32 @@ complete scan; the loop ``take``s the newest one at its tick. A scan that is ove
 any tick took it is stale: it is dropped and counted, never queued (a queue would make the SLAM
 fall further behind the robot the slower it runs). Both sides work on buffers allocated here,
 once; a lock makes the hand-over safe across threads.
+
+Records no robot produces are screened here, counted and never absorbed (docs/runtime.md §7):
+a scan with no valid reading or a non-finite or backward timestamp is refused; odometry that is
+non-finite, or jumps further than the robot can move between two readings (``InputConfig``), is
+dropped from its scan — which is still matched — and the front end's odometry starts afresh at
+the next good reading, so a re-based odometry (a 10 km jump) shifts nothing.
 """
 
 from __future__ import annotations
 
+import math
 import threading
 
 import numpy as np
 
+from runtime.config import InputConfig
 from runtime.scan import PointScan, ranges_to_points
 
 
 class ScanInbox:
-    def __init__(self, max_points: int, min_range: float = 0.0, max_range: float = np.inf):
-        """``min_range``/``max_range``: the sensor's; readings outside are dropped."""
+    def __init__(self, max_points: int, min_range: float = 0.0, max_range: float = np.inf,
+                 limits: InputConfig | None = None):
+        """``min_range``/``max_range``: the sensor's; readings outside are dropped.
+        ``limits``: what a robot's odometry can do between two readings."""
         self.min_range, self.max_range = float(min_range), float(max_range)
+        self.limits = limits or InputConfig()
         self._pending = PointScan(max_points)
         self._odometry = np.zeros(3)
         self._has_odometry = False
@@ -29,6 +40,13 @@ class ScanInbox:
         self.received = 0  # scans put
         self.stale = 0  # scans overwritten before a tick took them
         self.empty = 0  # scans with no valid reading, refused
+        self.bad_stamps = 0  # scans with a non-finite or backward timestamp, refused
+        self.odometry_non_finite = 0  # readings dropped from their scan
+        self.odometry_jumps = 0  # readings further than the robot moves, dropped
+        self._last_stamp = -math.inf  # the newest scan's timestamp
+        self._last_reading = np.zeros(3)  # the newest finite odometry reading, and its time
+        self._reading_stamp = math.nan
+        self._odometry_break = False  # a reading was dropped since the last take
 
     def put_ranges(self, *, angles, ranges, stamp: float, odometry=None) -> bool:
         """Hand over one scan as beam angles (rad, robot frame) and ranges (m), float64
@@ -51,20 +69,48 @@ class ScanInbox:
 
     def _accept(self, n, stamp, odometry) -> bool:
         self.received += 1
+        stamp = float(stamp)
+        if not stamp >= self._last_stamp or stamp == math.inf:  # NaN, ±inf, or backwards
+            self.bad_stamps += 1
+            return False
+        self._last_stamp = stamp
+        usable = odometry is not None and self._odometry_usable(odometry, stamp)
         if n == 0:
             self.empty += 1
             return False
         if self._full:
             self.stale += 1
         self._pending.count = n
-        self._stamp = float(stamp)
-        self._has_odometry = odometry is not None
-        if odometry is not None:
+        self._stamp = stamp
+        self._has_odometry = usable
+        if usable:
             self._odometry[0] = odometry[0]
             self._odometry[1] = odometry[1]
             self._odometry[2] = odometry[2]
         self._full = True
         return True
+
+    def _odometry_usable(self, odometry, stamp: float) -> bool:
+        """A finite reading within what the robot can move since the previous reading; the
+        reading becomes the previous one either way (a re-based odometry is then followed)."""
+        x, y, theta = float(odometry[0]), float(odometry[1]), float(odometry[2])
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(theta)):
+            self.odometry_non_finite += 1
+            self._odometry_break = True
+            return False
+        last, lim = self._last_reading, self.limits
+        first = math.isnan(self._reading_stamp)
+        dt = 0.0 if first else max(stamp - self._reading_stamp, 0.0)
+        turned = abs(math.remainder(theta - last[2], math.tau))
+        jumped = not first and (
+            math.hypot(x - last[0], y - last[1]) > lim.jump_slack + lim.max_speed * dt
+            or turned > lim.turn_slack + lim.max_turn_rate * dt)
+        last[0], last[1], last[2] = x, y, theta
+        self._reading_stamp = stamp
+        if jumped:
+            self.odometry_jumps += 1
+            self._odometry_break = True
+        return not jumped
 
     def take(self, scan: PointScan, odometry_out) -> tuple[bool, bool, float]:
         """Copy the newest scan into ``scan`` (and its odometry into ``odometry_out``).
@@ -77,14 +123,46 @@ class ScanInbox:
             scan.count = n
             odometry_out[:] = self._odometry
             self._full = False
-            return True, self._has_odometry, self._stamp
+            # After a dropped reading the scan taken goes without odometry, even if a good
+            # reading overwrote the dropped one: the front end's odometry then starts afresh.
+            has_odometry = self._has_odometry and not self._odometry_break
+            self._odometry_break = False
+            return True, has_odometry, self._stamp
 
     def waiting(self) -> bool:
         return self._full
 
+    def counts(self) -> dict:
+        """The records screened out so far, by kind (report and status line)."""
+        return {"stale_scans": self.stale, "empty_scans": self.empty,
+                "bad_stamp_scans": self.bad_stamps,
+                "odometry_non_finite": self.odometry_non_finite,
+                "odometry_jumps": self.odometry_jumps}
+
+    def skipped(self) -> str:
+        """The records screened out, for a status line ('' when none were)."""
+        return skipped_text(self.counts())
+
     def state(self) -> dict:
-        return {"received": self.received, "stale": self.stale, "empty": self.empty}
+        return {"received": self.received, "stale": self.stale, "empty": self.empty,
+                "bad_stamps": self.bad_stamps, "odometry_non_finite": self.odometry_non_finite,
+                "odometry_jumps": self.odometry_jumps}
 
     def restore(self, state: dict) -> None:
+        """The counts go on; the previous stamp and reading do not (a resumed session may
+        start a new log, with its own clock and odometry)."""
         self.received, self.stale = int(state["received"]), int(state["stale"])
         self.empty = int(state["empty"])
+        self.bad_stamps = int(state.get("bad_stamps", 0))
+        self.odometry_non_finite = int(state.get("odometry_non_finite", 0))
+        self.odometry_jumps = int(state.get("odometry_jumps", 0))
+
+
+SKIPPED = {"empty_scans": "scans with no return", "bad_stamp_scans": "bad timestamps",
+           "odometry_non_finite": "non-finite odometry", "odometry_jumps": "odometry jumps"}
+
+
+def skipped_text(counts: dict) -> str:
+    """'skipped 1 scans with no return, 2 odometry jumps' from a report's counts ('' if none)."""
+    parts = [f"{counts[k]} {what}" for k, what in SKIPPED.items() if counts.get(k)]
+    return "skipped " + ", ".join(parts) if parts else ""

@@ -183,8 +183,10 @@ class Localizer:
         self._commit(0)
 
     def _odometry_step(self, odometry):
-        """Odometry's motion since the last scan, or None (the trackers repeat their last)."""
+        """Odometry's motion since the last scan, or None (the trackers repeat their last;
+        a reading the inbox dropped: the next starts odometry afresh, docs/runtime.md §7)."""
         if odometry is None:
+            self.have_odometry = False
             return None
         step = odometry_motion(odometry, self.last_odometry, self.have_odometry)
         self.have_odometry = True

@@ -79,6 +79,8 @@ class SavedMap:
         n = len(poses)
         if poses.ndim != 2 or poses.shape[1] != 3:
             raise ValueError(f"node poses have shape {poses.shape}, expected (n, 3)")
+        if not np.all(np.isfinite(poses)):
+            raise ValueError("the graph holds non-finite poses")
         nodes = NodeScans(max(n, 1), max_points)
         nodes.restore(slam_state["nodes"])
         if len(slam_state["nodes"]["counts"]) != n:

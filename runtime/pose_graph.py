@@ -136,6 +136,8 @@ class PoseGraph:
         ij = state["ij"]
         if m and (ij.min() < 0 or ij.max() >= n or np.any(ij[:, 0] == ij[:, 1])):
             raise ValueError("an edge joins nodes that do not exist")
+        if not all(np.all(np.isfinite(state[k])) for k in ("poses", "z", "info")):
+            raise ValueError("the graph holds non-finite poses or edge measurements")
         self.n_nodes, self.n_edges = n, m
         self.poses[:n], self.stamps[:n] = state["poses"], state["stamps"]
         self.ij[:m], self.z[:m], self.info[:m] = ij, state["z"], state["info"]

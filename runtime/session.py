@@ -21,7 +21,7 @@ import hashlib
 import io
 import json
 import os
-import zipfile
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -114,8 +114,12 @@ def read_session(path) -> dict:
     try:
         with np.load(path, allow_pickle=False) as archive:
             data = {key: archive[key] for key in archive.files}
-    except (zipfile.BadZipFile, EOFError, OSError, ValueError) as exc:
-        raise refuse(f"not a readable session archive (truncated or corrupt): {exc}") from None
+    except Exception as exc:  # noqa: BLE001 — a damaged archive fails deep in zipfile or
+        # NumPy's header parser with whatever it meets (BadZipFile, EOFError, OSError,
+        # ValueError; a flipped header byte: NotImplementedError for an unknown compression,
+        # tokenize.TokenError): every one means the same to the user
+        raise refuse(f"not a readable session archive (truncated or corrupt): "
+                     f"{type(exc).__name__}: {exc}") from None
     for key in ("meta", "checksum"):
         if key not in data:
             raise refuse(f"missing entry {key!r}: not a SwarmSLAM session")
@@ -137,3 +141,42 @@ def read_session(path) -> dict:
         return decode(meta["state"], data)
     except KeyError as exc:
         raise refuse(f"missing entry {exc.args[0]!r}") from None
+
+
+class Autosave:
+    """A session written every ``interval`` seconds while a run goes on, so that a power cut
+    or a SIGKILL loses at most that much (docs/runtime.md §5). The state is taken on the
+    caller's thread (a consistent copy); a thread of its own encodes and writes it, so the
+    loop only pays for the copy. A write still running when the next is due skips that one."""
+
+    def __init__(self, path, interval: float, clock):
+        self.path, self.interval, self.clock = Path(path), float(interval), clock
+        self.due = clock() + self.interval
+        self.saves = 0
+        self.error = ""  # the last write's failure, if any (the run goes on)
+        self._thread: threading.Thread | None = None
+
+    def maybe(self, state_of) -> bool:
+        """Start a write of ``state_of()`` if one is due and none is running."""
+        if self.interval <= 0 or self.clock() < self.due:
+            return False
+        self.due = self.clock() + self.interval
+        if self._thread is not None and self._thread.is_alive():
+            return False
+        state = state_of()
+        self._thread = threading.Thread(target=self._write, args=(state,),
+                                        name="session-autosave", daemon=True)
+        self._thread.start()
+        return True
+
+    def _write(self, state) -> None:
+        try:
+            write_session(self.path, state)
+            self.saves += 1
+        except OSError as exc:
+            self.error = f"autosave to {self.path} failed: {exc}"
+
+    def wait(self) -> None:
+        """Let a write in progress finish (before the final save)."""
+        if self._thread is not None:
+            self._thread.join()

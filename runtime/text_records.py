@@ -4,6 +4,7 @@ blanks and comments, numeric fields parsed by name, and an error naming file, li
 from __future__ import annotations
 
 import math
+import zlib
 
 
 class DataFormatError(ValueError):
@@ -14,13 +15,34 @@ class DataFormatError(ValueError):
         super().__init__(f"{path}:{line}: {field}: {problem}")
 
 
-def records(path, opener=open):
-    """``(line number, tokens)`` of every non-blank, non-comment line."""
-    with opener(path) as f:
-        for lineno, line in enumerate(f, start=1):
-            tokens = line.split()
-            if tokens and not tokens[0].startswith("#"):
-                yield lineno, tokens
+# What reading a damaged file raises: a truncated gzip stream (EOFError), a corrupted one
+# (zlib.error, gzip.BadGzipFile is an OSError), a device or permission failure (OSError).
+READ_ERRORS = (OSError, EOFError, zlib.error)
+
+
+def records(path, opener=open, encoding: str = "utf-8", errors: str = "strict"):
+    """``(line number, tokens)`` of every non-blank, non-comment line. ``opener(path, "rb")``
+    opens the file as bytes; each line is decoded alone, so a binary file or a damaged
+    stream is reported with its file and line (:class:`DataFormatError`), never as a bare
+    decoding or zlib error."""
+    lineno = 0
+    with opener(path, "rb") as f:  # a missing file raises as it is: it names the path
+        try:
+            for lineno, raw in enumerate(f, start=1):
+                try:
+                    line = raw.decode(encoding, errors)
+                except UnicodeDecodeError as exc:
+                    raise DataFormatError(path, lineno, "text", f"not {encoding} text (a binary "
+                                          f"file?): byte {exc.start + 1} is "
+                                          f"{raw[exc.start]:#04x}") from None
+                tokens = line.split()
+                if tokens and not tokens[0].startswith("#"):
+                    yield lineno, tokens
+        except READ_ERRORS as exc:
+            detail = (exc.strerror if isinstance(exc, OSError) and exc.strerror else
+                      str(exc) or type(exc).__name__)
+            raise DataFormatError(path, lineno + 1, "file",
+                                  f"unreadable after line {lineno}: {detail}") from None
 
 
 def parse_numbers(path, lineno, names, tokens, error=DataFormatError) -> list[float]:

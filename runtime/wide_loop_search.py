@@ -221,4 +221,6 @@ class WideLoopSearch:
         (self.searches, self.proposed, self.ambiguous, self.at_edge,
          self.disagreed) = (int(v) for v in state["counts"])
         self.last_node = int(state["last_node"])
+        if self.last_node < -1 or not np.all(np.isfinite(state["correction"])):
+            raise ValueError("the wide loop search's last correction is not one it makes")
         self.correction[:] = state["correction"]

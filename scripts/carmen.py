@@ -71,12 +71,10 @@ def flaser_angles(n: int) -> np.ndarray:
     return -math.pi / 2 + step * np.arange(n)
 
 
-def _open(path: Path):
+def _open(path: Path, mode: str = "rb"):
     with open(path, "rb") as f:
         magic = f.read(2)
-    if magic == b"\x1f\x8b":
-        return gzip.open(path, "rt", encoding="ascii", errors="replace")
-    return open(path, encoding="ascii", errors="replace")
+    return gzip.open(path, mode) if magic == b"\x1f\x8b" else open(path, mode)
 
 
 class _Fields:
@@ -183,7 +181,7 @@ def read_carmen(path, max_range: float = FLASER_MAX_RANGE, sort: bool = True) ->
         raise FileNotFoundError(f"{path}: no such log file")
     lasers: list[LaserRecord] = []
     odometry: list[OdometryRecord] = []
-    for lineno, tokens in records(path, _open):
+    for lineno, tokens in records(path, _open, "ascii", "replace"):
         kind = tokens[0]
         f = _Fields(path, lineno, tokens)
         if kind == "FLASER":

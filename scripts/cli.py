@@ -4,6 +4,8 @@ packages, which hold the logic."""
 from __future__ import annotations
 
 import argparse
+import math
+import signal
 import sys
 import time
 from pathlib import Path
@@ -17,6 +19,7 @@ from runtime.config import (
     preset,
     to_toml,
 )
+from runtime.inbox import skipped_text
 from scripts.run_view import RunWatch
 
 
@@ -160,6 +163,8 @@ def _replay(args) -> int:
     if "eT" in m:
         print(f"relations: eT {m['eT']:.4f} ± {m['eT_std']:.4f} m, "
               f"eR {m['eR_deg']:.3f} ± {m['eR_std']:.3f} deg ({m['relations_used']} used)")
+    if skipped_text(m["runtime"]):
+        print(skipped_text(m["runtime"]) + " (counted in the report)")
     if args.localize:
         if args.out:
             print(f"wrote {args.out}/trajectory.tum, localization.json (the session is unchanged)")
@@ -194,8 +199,16 @@ def _simlog(args) -> int:
     return 0
 
 
+def _sigterm_as_ctrl_c() -> None:
+    """SIGTERM (how systemd, docker and kill stop a service) stops a live run as Ctrl-C does:
+    the run ends and its outputs are written."""
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+
+
 def _lidar(args) -> int:
     from scripts.live import run_live
+
+    _sigterm_as_ctrl_c()
 
     run_live(args.port, args.model, args.mode, args.out, args.rate, args.seconds, args.resume,
              config=_config(args, f"rplidar-{args.model}"), localize=args.localize,
@@ -215,6 +228,7 @@ def _emulate(args) -> int:
 
         source, what = WorldSource(args.world, seed=args.seed), f"world {args.world}"
     faults = Faults.parse(args.faults or "")
+    _sigterm_as_ctrl_c()
     emulator = VirtualRPLidar(source, args.model, faults, args.seed, args.link)
     path = emulator.start()
     print(f"virtual RPLidar {args.model.upper()} ({what}) on {path}")
@@ -289,8 +303,8 @@ def build_parser() -> argparse.ArgumentParser:
     li.add_argument("--model", default="a1", choices=models)
     li.add_argument("--mode", default="express", choices=["standard", "express"])
     li.add_argument("--out", default="swarmslam-live", help="output folder (written on Ctrl-C)")
-    li.add_argument("--rate", type=float, help="SLAM ticks per second (default: the configuration's, 10)")
-    li.add_argument("--seconds", type=float, help="stop after this long (default: Ctrl-C)")
+    li.add_argument("--rate", type=_positive, help="SLAM ticks per second (default: the configuration's, 10)")
+    li.add_argument("--seconds", type=_positive, help="stop after this long (default: Ctrl-C)")
     saved = li.add_mutually_exclusive_group()
     saved.add_argument("--resume", metavar="SESSION",
                        help="extend a saved session's map from wherever the scanner is in it")
@@ -316,7 +330,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--optimizer", choices=OPTIMIZERS,
                       help="swarm method (default: the configuration's, abc)")
     demo.add_argument("--seed", type=int, default=0)
-    demo.add_argument("--steps", type=int, help="step limit (default 1500; 120 with --matcher-only)")
+    demo.add_argument("--steps", type=_at_least_one, help="step limit (default 1500; 120 with --matcher-only)")
     demo.add_argument("--matcher-only", action="store_true",
                       help="runtime only, no simulator: chain swarm matches around a synthetic loop")
     _config_options(demo, "the simulator's preset")
@@ -332,7 +346,7 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--out", default="swarmslam-replay", help="output folder")
     rp.add_argument("--limit", type=_at_least_one, help="only the first N scans")
     rp.add_argument("--seed", type=int, default=0)
-    rp.add_argument("--start", type=int, default=0, help="the first scan replayed")
+    rp.add_argument("--start", type=_whole, default=0, help="the first scan replayed")
     saved = rp.add_mutually_exclusive_group()
     saved.add_argument("--localize", metavar="SESSION",
                        help="localize in a saved session's map (never changed): trajectory "
@@ -395,7 +409,7 @@ def build_parser() -> argparse.ArgumentParser:
                                           "fr-clinic, single scans and confirmed")
     lo.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
     lo.add_argument("--datasets", default="intel,aces,clinic")
-    lo.add_argument("--queries", type=int, default=200, help="scans relocalized per log")
+    lo.add_argument("--queries", type=_at_least_one, default=200, help="scans relocalized per log")
     lo.add_argument("--seed", type=int, default=0, help="seeds which scans are drawn")
     lo.add_argument("--maps", metavar="DIR", help="where the mapping runs are kept and reused "
                                                   "(default: ./swarmslam-maps)")
@@ -403,27 +417,27 @@ def build_parser() -> argparse.ArgumentParser:
     lo.set_defaults(func=_bench_localize)
     pg = bsub.add_parser("posegraph", help="Gauss-Newton on the g2o benchmark graphs")
     pg.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
-    pg.add_argument("--repeats", type=int, default=5)
+    pg.add_argument("--repeats", type=_at_least_one, default=5)
     _bench_outputs(pg)
     pg.set_defaults(func=_bench_posegraph)
     env = bsub.add_parser("env", help="SwarmSlam-v0 steps/s with SLAM off and on, LiDAR scans/s")
     env.add_argument("--world", default="office")
-    env.add_argument("--steps", type=int, default=5000, help="steps timed without SLAM")
-    env.add_argument("--slam-steps", type=int, default=1000, help="steps timed with SLAM")
+    env.add_argument("--steps", type=_at_least_one, default=5000, help="steps timed without SLAM")
+    env.add_argument("--slam-steps", type=_at_least_one, default=1000, help="steps timed with SLAM")
     _bench_outputs(env)
     env.set_defaults(func=_bench_env)
     rt = bsub.add_parser("runtime", help="the fixed-rate runtime on Intel: latency, misses, "
                                           "memory, accuracy; or --soak on simulated scans")
     rt.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
     rt.add_argument("--optimizer", default="abc", choices=OPTIMIZERS)
-    rt.add_argument("--realtime-minutes", type=float, default=2.0,
+    rt.add_argument("--realtime-minutes", type=_non_negative, default=2.0,
                     help="minutes of the log replayed at its recorded rate (0: skip; 45: all)")
-    rt.add_argument("--traced-ticks", type=int, default=6000,
+    rt.add_argument("--traced-ticks", type=_at_least_one, default=6000,
                     help="ticks measured under tracemalloc after warm-up")
     rt.add_argument("--limit", type=_at_least_one, help="only the first N scans")
-    rt.add_argument("--view-scans", type=int, default=4000,
+    rt.add_argument("--view-scans", type=_whole, default=4000,
                     help="scans ticked with and without a recording view attached (0: skip)")
-    rt.add_argument("--soak", type=float, metavar="MINUTES",
+    rt.add_argument("--soak", type=_positive, metavar="MINUTES",
                     help="instead: run this long on simulated scans, sampling memory")
     _bench_outputs(rt)
     _config_options(rt, DEFAULT_PRESET)
@@ -439,6 +453,42 @@ def _at_least_one(text: str) -> int:
         raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+def _whole(text: str) -> int:
+    """An index argument: a whole number ≥ 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be at least 0, got {value}")
+    return value
+
+
+def _finite(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
+    return value
+
+
+def _positive(text: str) -> float:
+    """A duration or rate: a finite number > 0."""
+    value = _finite(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {value:g}")
+    return value
+
+
+def _non_negative(text: str) -> float:
+    value = _finite(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be ≥ 0, got {value:g}")
     return value
 
 

@@ -23,6 +23,13 @@ class G2oFormatError(DataFormatError):
 _EDGE_FIELDS = ("i", "j", "dx", "dy", "dtheta", "I11", "I12", "I13", "I22", "I23", "I33")
 
 
+def _vertex_id(path, lineno: int, name: str, value: float) -> int:
+    """A vertex id: a whole number (g2o ids are integers; 1.5 would alias vertex 1)."""
+    if value != int(value) or abs(value) >= 2**62:
+        raise G2oFormatError(path, lineno, name, f"vertex ids are integers, got {value!r}")
+    return int(value)
+
+
 def read_g2o(path, extra_nodes: int = 0, extra_edges: int = 0) -> tuple[PoseGraph, list]:
     """The graph and the original vertex ids (index → id)."""
     path = Path(path)
@@ -33,6 +40,7 @@ def read_g2o(path, extra_nodes: int = 0, extra_edges: int = 0) -> tuple[PoseGrap
         if tag == "VERTEX_SE2":
             vid, x, y, t = parse_numbers(path, lineno, ("id", "x", "y", "theta"), tokens[1:],
                                          G2oFormatError)
+            vid = _vertex_id(path, lineno, "id", vid)
             if vid in ids:
                 raise G2oFormatError(path, lineno, "id", f"vertex {int(vid)} defined twice")
             ids[int(vid)] = len(poses)
@@ -49,7 +57,7 @@ def read_g2o(path, extra_nodes: int = 0, extra_edges: int = 0) -> tuple[PoseGrap
     kind = np.zeros(n_e, np.int8)
     for k, (lineno, v) in enumerate(edges):
         for col, name in ((0, "i"), (1, "j")):
-            if int(v[col]) not in ids:
+            if _vertex_id(path, lineno, name, v[col]) not in ids:
                 raise G2oFormatError(path, lineno, name, f"unknown vertex {int(v[col])}")
         ij[k] = (ids[int(v[0])], ids[int(v[1])])
         z[k] = v[2:5]

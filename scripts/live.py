@@ -20,7 +20,7 @@ from hardware.models import model as get_model
 from runtime.config import SlamConfig, override, preset
 from runtime.fixed_rate import SlamRuntime
 from runtime.writers import write_json_atomic
-from scripts.outputs import write_results
+from scripts.outputs import check_writable, clean_stale, output_set, write_results
 from scripts.run_view import frame_of
 from scripts.tum import write_tum
 
@@ -41,12 +41,15 @@ def run_live(port: str, model: str = "a1", mode: str = "express", out_dir="swarm
     its map (found first); ``localize``: a session to localize in, never changed.
     ``watch``: a :class:`scripts.run_view.RunWatch` shown after every tick that took a scan."""
     out = Path(out_dir)
+    check_writable(out)
+    clean_stale(out)
     changes = {"runtime.rate_hz": rate_hz} if rate_hz is not None else None
+    sensor = slam_config_for(model).sensor  # the scanner on the port now
     if localize:
-        runtime = SlamRuntime.localize(localize, changes=changes)
+        runtime = SlamRuntime.localize(localize, changes=changes, sensor=sensor)
         echo(f"localizing in {localize}: {runtime.slam.saved.n_nodes} saved nodes (read-only)")
     elif resume:
-        runtime = SlamRuntime.resume(resume, anywhere=True, changes=changes)
+        runtime = SlamRuntime.resume(resume, anywhere=True, changes=changes, sensor=sensor)
         echo(f"resumed {resume}: {runtime.slam.n_nodes} nodes; finding where it starts")
     else:
         if config is None:
@@ -54,6 +57,8 @@ def run_live(port: str, model: str = "a1", mode: str = "express", out_dir="swarm
         elif rate_hz is not None:
             config = override(config, {"runtime.rate_hz": rate_hz})
         runtime = SlamRuntime(config)
+    if runtime.session_note:
+        echo(runtime.session_note)
     inbox = runtime.inbox
 
     def on_scan(angles, ranges, stamp):
@@ -87,14 +92,15 @@ def run_live(port: str, model: str = "a1", mode: str = "express", out_dir="swarm
                  f"{graph}  p99 "
                  f"{r['latency_ms_p99']:5.1f} ms  misses {r['deadline_misses']}  stale "
                  f"{r['stale_scans']}  checksum {s['checksum_errors']} resync {s['resyncs']} "
-                 f"timeouts {s['timeouts']} reconnects {s['reconnects']}  {rt.status}")
+                 f"timeouts {s['timeouts']} reconnects {s['reconnects']}  {rt.status}"
+                 + (f"  {rt.inbox.skipped()}" if rt.inbox.skipped() else ""))
             last_print[0], last_print[1] = now, r["scans"]
 
     try:
         lidar.start(mode)
-        runtime.run(stop, on_tick=on_tick)
+        runtime.run(stop, on_tick=on_tick, autosave=out / "session.npz")
     except KeyboardInterrupt:
-        echo("stopping (Ctrl-C): saving")
+        echo("stopping (Ctrl-C or SIGTERM): saving")
     finally:
         lidar.close()
         if watch is not None:
@@ -103,16 +109,23 @@ def run_live(port: str, model: str = "a1", mode: str = "express", out_dir="swarm
 
 
 def save_outputs(runtime: SlamRuntime, out: Path, scanner: dict, echo=print) -> dict:
+    """The run's output set, swapped in whole (scripts/outputs.py) once an autosave in
+    progress has finished."""
+    if runtime.autosave is not None:
+        runtime.autosave.wait()
     runtime.drain()
     summary = {"runtime": runtime.report(), "scanner": scanner}
-    if runtime.localizing:  # the saved map is unchanged: only where the robot went
-        write_tum(out / "trajectory.tum", *runtime.trajectory())
-        write_json_atomic(out / "summary.json", summary)
-        echo(f"wrote {out}/: trajectory.tum summary.json")
-        return summary
-    if runtime.slam.n_nodes:
-        write_results(runtime.slam, out)
-        runtime.save(out / "session.npz")
-    write_json_atomic(out / "summary.json", summary)
-    echo(f"wrote {out}/: map.pgm map.yaml map.png trajectory.tum graph.g2o session.npz summary.json")
+    with output_set(out) as stage:
+        if runtime.localizing:  # the saved map is unchanged: only where the robot went
+            write_tum(stage / "trajectory.tum", *runtime.trajectory())
+            write_json_atomic(stage / "summary.json", summary)
+            wrote = "trajectory.tum summary.json"
+        else:
+            wrote = "summary.json"
+            if runtime.slam.n_nodes:
+                write_results(runtime.slam, stage)
+                runtime.save(stage / "session.npz")
+                wrote = "map.pgm map.yaml map.png trajectory.tum graph.g2o session.npz " + wrote
+            write_json_atomic(stage / "summary.json", summary)
+    echo(f"wrote {out}/: {wrote}")
     return summary

@@ -43,23 +43,32 @@ def is_failure(e_trans, e_rot, max_trans: float = 0.3, max_rot: float = 0.1):
 LOCAL_GAP = 300.0  # s: relations with endpoints closer in time are "local" (datasets README)
 
 
-def relation_errors(stamps, poses, relations, tolerance: float = 1e-4):
-    """Each relation's errors (Eqs. 22–23 before averaging) for the relations whose two
-    timestamps are both in the trajectory: ``(mask of the relations used, e_t m, e_r deg)``."""
+def match_relations(stamps, relations, tolerance: float = 1e-4):
+    """For each relation, the indices into ``stamps`` of its two ends and whether both are
+    there (within ``tolerance`` s): ``(i, j, ok)``."""
     stamps = np.asarray(stamps, dtype=np.float64)
-    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
     order = np.argsort(stamps)
     sorted_stamps = stamps[order]
 
     def lookup(t):
+        if len(sorted_stamps) == 0:
+            return np.zeros(len(t), np.int64), np.zeros(len(t), bool)
         k = np.clip(np.searchsorted(sorted_stamps, t), 1, max(len(sorted_stamps) - 1, 1))
+        k = np.minimum(k, len(sorted_stamps) - 1)
         k = np.where(np.abs(sorted_stamps[k - 1] - t) < np.abs(sorted_stamps[k] - t), k - 1, k)
         ok = np.abs(sorted_stamps[k] - t) <= tolerance
         return order[k], ok
 
     i, ok1 = lookup(relations.t1)
     j, ok2 = lookup(relations.t2)
-    ok = ok1 & ok2
+    return i, j, ok1 & ok2
+
+
+def relation_errors(stamps, poses, relations, tolerance: float = 1e-4):
+    """Each relation's errors (Eqs. 22–23 before averaging) for the relations whose two
+    timestamps are both in the trajectory: ``(mask of the relations used, e_t m, e_r deg)``."""
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+    i, j, ok = match_relations(stamps, relations, tolerance)
     if not np.any(ok):
         raise ValueError("no relation matches the trajectory's timestamps")
     estimated = between(poses[j[ok]], poses[i[ok]])  # δ_ij = x_j ⊖ x_i

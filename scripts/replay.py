@@ -8,18 +8,17 @@ in it with ``--localize``, extend it with ``--resume``) and ``metrics.json``.
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import numpy as np
 
 from runtime.config import SlamConfig, override
 from runtime.fixed_rate import SlamRuntime
 from runtime.pose import compose
-from runtime.scan import PointScan
+from runtime.scan import PointScan, ranges_to_points
 from runtime.writers import write_json_atomic
 from scripts.carmen import read_carmen
-from scripts.metrics import kummerle
-from scripts.outputs import write_results
+from scripts.metrics import kummerle, match_relations
+from scripts.outputs import check_writable, output_set, write_results
 from scripts.progress import Progress
 from scripts.relations import read_relations
 from scripts.run_view import frame_of
@@ -40,13 +39,32 @@ def replay_config(config: SlamConfig | None = None, optimizer: str | None = None
 
 
 def robot_frame_scan(record, scan: PointScan) -> PointScan:
-    """A laser record's valid points, moved from the laser's frame into the robot's."""
-    scan.set_ranges(record.ranges, record.angles, 0.0, record.max_range)
-    if np.any(record.laser_offset):
+    """A laser record's valid points, moved from the laser's frame into the robot's (none when
+    no beam returned: the runtime refuses and counts such a scan)."""
+    scan.count = ranges_to_points(record.ranges, record.angles, 0.0, record.max_range,
+                                  scan.buffer)
+    if scan.count and np.any(record.laser_offset):
         n = scan.count
         pts = compose(record.laser_offset, np.c_[scan.buffer[:n], np.zeros(n)])
         scan.buffer[:n] = pts[:, :2]
     return scan
+
+
+def scored(stamps, poses, relations) -> dict:
+    """:func:`kummerle`'s figures, or none and why when no relation's ends both have a pose
+    (the scans they name were all refused): the run's outputs are kept either way."""
+    try:
+        return kummerle(stamps, poses, relations)
+    except ValueError as exc:
+        return {"relations_used": 0, "relations_total": len(relations),
+                "relations_note": str(exc)}
+
+
+def log_seconds(lasers) -> float:
+    """The time the scans span, from their finite timestamps (a bad one is skipped)."""
+    stamps = np.array([r.timestamp for r in lasers], dtype=np.float64)
+    stamps = stamps[np.isfinite(stamps)]
+    return float(stamps.max() - stamps.min()) if len(stamps) else 0.0
 
 
 def replay(log_path, relations_path=None, optimizer: str | None = None, odometry=True,
@@ -101,11 +119,19 @@ def replay_run(log_path, relations_path=None, optimizer: str | None = None, odom
 
 def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, seed, config,
                 label, schedule, before_scan, localize, resume, start, watch):
+    if out_dir is not None:
+        check_writable(out_dir)  # before the run, not after it
     log = read_carmen(log_path)
     relations = read_relations(relations_path) if relations_path else None
     lasers = log.lasers[start : start + limit if limit else None]
     if not lasers:
         raise ValueError(f"{log_path}: no laser scans from scan {start}")
+    if relations is not None:  # before the run, not after it: relations of another log
+        matched = int(match_relations([r.timestamp for r in lasers], relations)[2].sum())
+        if matched == 0:
+            raise ValueError(f"{relations_path}: none of its {len(relations)} relations has "
+                             f"both ends at scans of {log_path} (within 0.1 ms) — the "
+                             f"relations of another log?")
     runtime = replay_runtime(len(lasers), optimizer, seed, config, schedule, localize, resume)
     config = runtime.config
     slam = runtime.slam
@@ -128,7 +154,7 @@ def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, s
     runtime.drain()  # deferred loop searches finish, as on the robot's next ticks
     progress.close()
     wall = time.perf_counter() - start_time
-    data_seconds = float(lasers[-1].timestamp - lasers[0].timestamp)
+    data_seconds = log_seconds(lasers)
     timing = {
         "wall_seconds": wall,
         "data_seconds": data_seconds,
@@ -157,11 +183,12 @@ def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, s
         "runtime": runtime.report(),
     }
     if relations is not None:
-        metrics.update(kummerle(stamps, poses, relations))
+        metrics.update(scored(stamps, poses, relations))
     if out_dir is not None:
-        write_results(slam, out_dir)
-        runtime.save(Path(out_dir) / "session.npz")  # map once, localize or resume later
-        write_json_atomic(Path(out_dir) / "metrics.json", metrics)
+        with output_set(out_dir) as stage:  # swapped in whole (scripts/outputs.py)
+            write_results(slam, stage)
+            runtime.save(stage / "session.npz")  # map once, localize or resume later
+            write_json_atomic(stage / "metrics.json", metrics)
     return metrics, runtime
 
 
@@ -175,8 +202,9 @@ def localization_results(runtime: SlamRuntime, log_path, session_path, lasers, o
                "status": runtime.status, "runtime": runtime.report(),
                "saved_map_sha256": runtime.slam.saved.digest()}
     if relations is not None:
-        metrics.update(kummerle(stamps, poses, relations))
+        metrics.update(scored(stamps, poses, relations))
     if out_dir is not None:
-        write_tum(Path(out_dir) / "trajectory.tum", stamps, poses)
-        write_json_atomic(Path(out_dir) / "localization.json", metrics)
+        with output_set(out_dir) as stage:
+            write_tum(stage / "trajectory.tum", stamps, poses)
+            write_json_atomic(stage / "localization.json", metrics)
     return metrics

@@ -99,8 +99,20 @@ class SwarmSlamEnv(gym.Env):
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
         if optimizer not in OPTIMIZERS:
             raise ValueError(f"optimizer must be one of {', '.join(OPTIMIZERS)}, got {optimizer!r}")
-        if len(odometry_noise) != 3 or min(odometry_noise) < 0:
-            raise ValueError(f"odometry_noise needs three stds ≥ 0, got {odometry_noise}")
+        if len(odometry_noise) != 3 or not all(math.isfinite(v) and v >= 0
+                                                for v in odometry_noise):
+            raise ValueError(f"odometry_noise needs three finite stds ≥ 0, got {odometry_noise}")
+        for name, value in (("max_linear", max_linear), ("max_angular", max_angular),
+                            ("robot_radius", robot_radius), ("map_resolution", map_resolution),
+                            ("crop", crop)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        if crop != int(crop):
+            raise ValueError(f"crop is a number of cells, got {crop!r}")
+        for name, value in (("reward_per_m2", reward_per_m2),
+                            ("collision_penalty", collision_penalty)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value)):
+                raise ValueError(f"{name} must be a finite number, got {value!r}")
         self.render_mode = render_mode
         self.world = get_world(world, world_seed)
         self.lidar = Lidar(self.world, lidar_config(lidar))
@@ -141,10 +153,10 @@ class SwarmSlamEnv(gym.Env):
             "scan": spaces.Box(0.0, lc.max_range, (lc.beams,), np.float32),
             "pose": spaces.Box(np.array([x0, y0, -math.pi], np.float32),
                                np.array([x1, y1, math.pi], np.float32), dtype=np.float32),
-            "map": spaces.Box(0.0, 1.0, (crop, crop), np.float32),
+            "map": spaces.Box(0.0, 1.0, (int(crop), int(crop)), np.float32),
         })
         self._scan = PointScan(lc.beams)
-        self._crop = np.zeros((crop, crop))
+        self._crop = np.zeros((int(crop), int(crop)))
         self.space = self.robot = self.slam = None
         self.renderer = None
         self.true_path: list[np.ndarray] = []
@@ -193,7 +205,10 @@ class SwarmSlamEnv(gym.Env):
     def step(self, action):
         if self.robot is None:
             raise RuntimeError("call reset() before step()")
-        action = np.clip(np.asarray(action, dtype=np.float64).reshape(2), -1.0, 1.0)
+        action = np.asarray(action, dtype=np.float64).reshape(2)
+        if not np.all(np.isfinite(action)):  # NaN would make the true pose NaN from here on
+            raise ValueError(f"action must be finite, got {action.tolist()}")
+        action = np.clip(action, -1.0, 1.0)
         self.robot.command(action[0] * self.max_linear, action[1] * self.max_angular)
         self.robot.clear_touched()
         for _ in range(self.substeps):

@@ -18,11 +18,19 @@ from swarmslam_sim.raycast import point_segment_distance
 from swarmslam_sim.world import World
 
 
+MIN_MAPPABLE_AREA = 2.0  # m² reachable from the start: less is a start inside an obstacle
+MAX_MAP_CELLS = 25_000_000  # a 500 m square at 0.1 m: 200 MB of log-odds
+
+
 def world_grid(world: World, resolution: float) -> OccupancyGrid:
     """An empty grid over the world's bounds, its ``region`` set to the mappable area."""
     x0, y0, x1, y1 = world.bounds
-    grid = OccupancyGrid(int(math.ceil((x1 - x0) / resolution)), int(math.ceil((y1 - y0) / resolution)),
-                         resolution, (x0, y0))
+    w, h = int(math.ceil((x1 - x0) / resolution)), int(math.ceil((y1 - y0) / resolution))
+    if w * h > MAX_MAP_CELLS:
+        raise ValueError(f"map_resolution {resolution:g} m is too fine for world "
+                         f"{world.name!r} ({x1 - x0:g} × {y1 - y0:g} m): {w * h:,} cells, at "
+                         f"most {MAX_MAP_CELLS:,}")
+    grid = OccupancyGrid(w, h, resolution, (x0, y0))
     grid.region[:] = mappable_area(world, grid)
     return grid
 
@@ -45,7 +53,17 @@ def mappable_area(world: World, grid: OccupancyGrid) -> np.ndarray:
     sx, sy = grid_cell(grid, world.start)
     if not (0 <= sy < free.shape[0] and 0 <= sx < free.shape[1]) or labels[sy, sx] == 0:
         raise ValueError(f"world {world.name!r}: the start {world.start[:2]} is not in free space")
-    return (labels == labels[sy, sx]).astype(np.uint8)
+    region = labels == labels[sy, sx]
+    if region[0].any() or region[-1].any() or region[:, 0].any() or region[:, -1].any():
+        raise ValueError(f"world {world.name!r}: the free space around the start "
+                         f"{world.start[:2]} reaches the bounds — the start lies outside the "
+                         f"walls, or the walls leave a gap")
+    area = float(region.sum()) * grid.resolution**2
+    if area < MIN_MAPPABLE_AREA:
+        raise ValueError(f"world {world.name!r}: the start {world.start[:2]} is enclosed in "
+                         f"{area:.2g} m² (inside a box?); at least {MIN_MAPPABLE_AREA:g} m² "
+                         f"must be reachable")
+    return region.astype(np.uint8)
 
 
 def grid_cell(grid: OccupancyGrid, xy) -> tuple[int, int]:

@@ -27,6 +27,9 @@ from runtime.text_records import DataFormatError, parse_numbers, records
 from runtime.writers import write_text_atomic
 
 
+MAX_EXTENT = 1000.0  # m per side: a campus floor fits; the ray caster's grid stays small
+
+
 @dataclass(frozen=True)
 class World:
     name: str
@@ -42,6 +45,15 @@ class World:
         x0, y0, x1, y1 = self.bounds
         if not (x1 > x0 and y1 > y0):
             raise ValueError(f"world {self.name!r}: empty bounds {self.bounds}")
+        if max(x1 - x0, y1 - y0) > MAX_EXTENT:
+            raise ValueError(f"world {self.name!r}: bounds {self.bounds} span "
+                             f"{x1 - x0:.6g} × {y1 - y0:.6g} m; at most {MAX_EXTENT:g} m a side")
+        outside = ~((seg[:, [0, 2]] >= x0) & (seg[:, [0, 2]] <= x1)
+                    & (seg[:, [1, 3]] >= y0) & (seg[:, [1, 3]] <= y1)).all(axis=1)
+        if outside.any():
+            k = int(np.argmax(outside))
+            raise ValueError(f"world {self.name!r}: wall segment {k + 1} "
+                             f"{tuple(float(v) for v in seg[k])} leaves the bounds {self.bounds}")
         if not (x0 < self.start[0] < x1 and y0 < self.start[1] < y1):
             raise ValueError(f"world {self.name!r}: start {self.start[:2]} outside bounds {self.bounds}")
 
@@ -79,6 +91,7 @@ def load_world(path) -> World:
     if not path.is_file():
         raise FileNotFoundError(f"world file not found: {path}")
     name, bounds, start, segs = path.stem, None, None, []
+    lines: list[int] = []  # the line each segment came from
     for lineno, tokens in records(path):
         comment = next((k for k, t in enumerate(tokens) if t.startswith("#")), len(tokens))
         key, args = tokens[0], tokens[1:comment]
@@ -90,6 +103,9 @@ def load_world(path) -> World:
             bounds = tuple(parse_numbers(path, lineno, ("xmin", "ymin", "xmax", "ymax"), args))
             if not (bounds[2] > bounds[0] and bounds[3] > bounds[1]):
                 raise DataFormatError(path, lineno, "bounds", "xmax must exceed xmin and ymax ymin")
+            if max(bounds[2] - bounds[0], bounds[3] - bounds[1]) > MAX_EXTENT:
+                raise DataFormatError(path, lineno, "bounds", f"the world may span at most "
+                                      f"{MAX_EXTENT:g} m a side")
         elif key == "start":
             x, y, deg = parse_numbers(path, lineno, ("x", "y", "heading_deg"), args)
             start = (x, y, math.radians(deg))
@@ -97,12 +113,14 @@ def load_world(path) -> World:
             values = parse_numbers(path, lineno, [f"{key} value {k + 1}" for k in range(len(args))],
                                    args) if args else []
             segs += _polyline(path, lineno, key, values, closed=key == "polygon")
+            lines += [lineno] * (len(segs) - len(lines))
         elif key == "box":
             cx, cy, w, h, deg = parse_numbers(path, lineno, ("cx", "cy", "width", "height", "angle_deg"),
                                               args)
             if w <= 0 or h <= 0:
                 raise DataFormatError(path, lineno, "width" if w <= 0 else "height", "must be > 0")
             segs += box_segments(cx, cy, w, h, math.radians(deg))
+            lines += [lineno] * (len(segs) - len(lines))
         else:
             raise DataFormatError(path, lineno, "statement",
                                   f"unknown {key!r} (expected name, bounds, start, wall, polygon, box)")
@@ -114,6 +132,10 @@ def load_world(path) -> World:
         raise DataFormatError(path, 0, "wall", "the world has no walls")
     if not (bounds[0] < start[0] < bounds[2] and bounds[1] < start[1] < bounds[3]):
         raise DataFormatError(path, 0, "start", f"{start[:2]} lies outside bounds {bounds}")
+    for lineno, (x0, y0, x1, y1) in zip(lines, segs):
+        if not all(bounds[0] <= x <= bounds[2] and bounds[1] <= y <= bounds[3]
+                   for x, y in ((x0, y0), (x1, y1))):
+            raise DataFormatError(path, lineno, "wall", f"reaches outside bounds {bounds}")
     return World(name, np.array(segs, dtype=np.float64), bounds, start)
 
 
