@@ -2,7 +2,7 @@
 
     lidar = RPLidar("/dev/rplidar", "a1", on_scan=lambda angles, ranges, stamp: print(len(ranges)))
     lidar.connect(); print(lidar.get_info(), lidar.get_health())
-    lidar.start("express")           # motor on, scan started, reader thread running
+    lidar.start("typical")           # motor on, the scanner's typical mode, reader running
     ...
     lidar.close()                    # scan and motor stopped, port closed
 
@@ -23,9 +23,10 @@ import time
 import serial
 
 from hardware import protocol as p
+from hardware.models import ScanMode
 from hardware.models import model as get_model
 from hardware.rotation import Rotations
-from hardware.stream import CapsuleStream, NodeStream, StreamStats, find_descriptor
+from hardware.stream import NodeStream, StreamStats, find_descriptor, stream_for
 
 try:  # a port that vanishes mid-call fails in termios, which is not an OSError
     from termios import error as _termios_error
@@ -52,7 +53,8 @@ class RPLidar:
         self.stats = StreamStats()
         self.rotations = Rotations(on_scan, mount_yaw=mount_yaw)
         self.serial: serial.Serial | None = None
-        self.mode: str | None = None  # scanning mode, None when idle
+        self.mode = None  # the scan mode running (resolved), None when idle
+        self.scan_mode = None  # the mode last started (resolved), kept across restarts
         self.motor_note = ""
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -170,6 +172,35 @@ class RPLidar:
             raise LidarError(f"GET_LIDAR_CONF 0x{conf_type:X}: malformed reply {reply.hex(' ')}")
         return decoded[1]
 
+    def negotiate_baud(self, bps: int, timeout: float = 1.5) -> int:
+        """Switch the link to ``bps`` where the model allows (B7, the SDK's auto-baud): the
+        port reopens at the new rate, magic bytes go out until the scanner answers the rate
+        it measured, and a confirmation makes it stay. Returns the measured rate."""
+        allowed = (self.model.baud, *self.model.bauds)
+        if bps not in allowed:
+            raise ValueError(f"the {self.model.name.upper()} runs at "
+                             f"{', '.join(str(b) for b in allowed)} bps, not {bps}")
+        if self.mode is not None:
+            raise LidarError("negotiate_baud: the scanner is scanning; call stop() first")
+        with self._lock:
+            try:
+                self.serial.baudrate = bps
+                self.serial.reset_input_buffer()
+                deadline, reply = time.monotonic() + timeout, bytearray()
+                while len(reply) < 4 and time.monotonic() < deadline:
+                    self.serial.write(bytes((p.AUTOBAUD_MAGIC,)) * 16)
+                    self.serial.flush()
+                    reply += self.serial.read(4 - len(reply))
+            except PORT_ERRORS as exc:
+                raise self._port_lost(exc) from None
+        if len(reply) < 4:
+            raise LidarError(f"{self.port}: no answer to the baud negotiation at {bps} bps "
+                             f"within {timeout} s (the scanner may not support it)")
+        measured = int.from_bytes(reply[:4], "little")
+        self.send(p.NEW_BAUDRATE_CONFIRM, p.baud_confirm_payload(bps))
+        self.baud = bps
+        return measured
+
     # ------------------------------------------------------------------ motor (B8)
     def start_motor(self) -> None:
         kind = self.model.motor
@@ -202,12 +233,45 @@ class RPLidar:
             self.motor_note = f"DTR not settable on {self.port}: {exc.strerror}"
 
     # ------------------------------------------------------------------ scanning
-    def start(self, mode: str = "standard") -> None:
-        """Motor on, scan started, the reader thread running."""
-        if mode not in ("standard", "express"):
-            raise ValueError(f"scan mode must be 'standard' or 'express', got {mode!r}")
+    def scan_modes(self) -> list[ScanMode]:
+        """The scan modes the scanner reports (GET_LIDAR_CONF, B3), by id."""
+        count = self.get_lidar_conf(p.CONF_MODE_COUNT)
+        return [ScanMode(k, self.get_lidar_conf(p.CONF_MODE_NAME, k),
+                         self.get_lidar_conf(p.CONF_ANSWER_TYPE, k),
+                         self.get_lidar_conf(p.CONF_US_PER_SAMPLE, k),
+                         self.get_lidar_conf(p.CONF_MAX_DISTANCE, k)) for k in range(count)]
+
+    def typical_mode(self) -> int:
+        """The id of the mode Slamtec recommends for this scanner (what its SDK starts)."""
+        return self.get_lidar_conf(p.CONF_TYPICAL_MODE)
+
+    def resolve_mode(self, mode) -> ScanMode | str:
+        """``mode`` as the scanner knows it: 'standard' and 'express' (legacy express, mode
+        0 of EXPRESS_SCAN) as they are; 'typical', a mode name or an id from the scanner's own
+        table. A scanner that answers no GET_LIDAR_CONF (firmware before 1.24) runs
+        'typical' as 'express'."""
+        if mode in ("standard", "express"):
+            return mode
+        try:
+            modes = self.scan_modes()
+            key = self.typical_mode() if mode == "typical" else mode
+        except LidarError:
+            if mode == "typical":
+                return "express"
+            raise
+        for m in modes:
+            if m.id == key or (isinstance(key, str) and m.name.lower() == key.lower()):
+                return m
+        raise ValueError(f"{self.port}: the scanner has no scan mode {mode!r} (it has "
+                         f"{', '.join(m.name for m in modes)}, or standard, express, typical)")
+
+    def start(self, mode="typical") -> None:
+        """Motor on, scan started in ``mode`` (see :meth:`resolve_mode`), the reader thread
+        running."""
         if self._thread is not None:
             raise LidarError("already scanning")
+        mode = self.resolve_mode(mode)
+        self.scan_mode = mode
         self.start_motor()
         parser = self._start_scan(mode)
         self._stop.clear()
@@ -230,24 +294,26 @@ class RPLidar:
                 pass
         self.mode = None
 
-    def _start_scan(self, mode: str):
-        """Send SCAN / EXPRESS_SCAN, read the descriptor, return the stream parser."""
+    def _start_scan(self, mode):
+        """Send SCAN / EXPRESS_SCAN for a resolved mode, read the descriptor, return the
+        stream parser."""
         self.mode = None
+        name = mode if isinstance(mode, str) else f"{mode.name} (mode {mode.id})"
         with self._lock:
             self.serial.reset_input_buffer()
-            if mode == "standard":
+            if mode == "standard" or (not isinstance(mode, str)
+                                      and mode.answer_type == p.ANS_NODE):
                 self.send(p.SCAN)
             else:
-                self.send(p.EXPRESS_SCAN, p.express_payload(0))
-            d, buffer = self._await_descriptor(f"{mode} scan", time.monotonic() + self.timeout)
+                working_mode = 0 if mode == "express" else mode.id
+                self.send(p.EXPRESS_SCAN, p.express_payload(working_mode))
+            d, buffer = self._await_descriptor(f"{name} scan", time.monotonic() + self.timeout)
         self.rotations.reset()
-        if d.answer_type == p.ANS_NODE:
-            parser = NodeStream(self.rotations, self.stats)
-        elif d.answer_type in (p.ANS_CAPSULE, p.ANS_DENSE):
-            parser = CapsuleStream(self.rotations, d.answer_type == p.ANS_DENSE, self.stats)
-        else:
-            raise LidarError(f"{mode} scan: answer type 0x{d.answer_type:02X} is not supported "
-                             "(0x81 nodes, 0x82 express and 0x85 dense capsules are)")
+        parser = stream_for(d.answer_type, self.rotations, self.stats)
+        if parser is None:
+            raise LidarError(f"{name} scan: answer type 0x{d.answer_type:02X} is not one we "
+                             "decode (0x81 nodes; 0x82 express, 0x83 HQ, 0x84 ultra, 0x85 "
+                             "dense, 0x86 ultra-dense capsules)")
         parser.feed(bytes(buffer))
         self.mode = mode
         return parser

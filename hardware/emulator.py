@@ -6,8 +6,11 @@
     emulator.stop()
 
 It answers GET_INFO, GET_HEALTH, GET_SAMPLERATE, GET_LIDAR_CONF, GET_ACC_BOARD_FLAG, motor
-commands, STOP and RESET, and streams standard nodes (SCAN), legacy express capsules (A-series
-EXPRESS_SCAN) or dense capsules (S-series and C1) at the model's sample rate. The ranges come
+commands, STOP and RESET. SCAN streams standard nodes; EXPRESS_SCAN streams, for working mode 0,
+the model's legacy express answer (express capsules on the A-series, dense on the S-series and
+C1), and for a mode id the answer of that scan mode in the model's table
+(:data:`hardware.models.MODELS`: express, ultra, dense, ultra-dense or HQ capsules) at its
+sample rate; GET_LIDAR_CONF describes every mode and names the typical one. The ranges come
 from a *source*: ``source.distances(angles_deg)`` gives distances in mm (0: no return) at the
 scanner's clockwise angles for the rotation under way, and ``source.next_rotation()`` moves on
 (:class:`scripts.emulator_sources.CarmenSource`, :class:`scripts.emulator_sources.WorldSource`).
@@ -20,9 +23,11 @@ give — then points at the new one, so clients reconnect by name).
 
 from __future__ import annotations
 
+import fcntl
 import math
 import os
 import select
+import struct
 import threading
 import time
 import tty
@@ -34,6 +39,7 @@ import numpy as np
 from hardware import protocol as p
 from hardware.models import model as get_model
 
+TCGETS2 = 0x802C542A  # Linux: read a terminal's termios2 (its speeds as numbers)
 STANDARD_US = 508  # µs per sample in standard mode (A-series)
 BOOT_TEXT = b"RP LIDAR System.\r\nFirmware Ver 1.29 - rtm, HW Ver 7\r\nModel: 18\r\n"
 
@@ -83,9 +89,13 @@ class Faults:
 
 class VirtualRPLidar:
     def __init__(self, source, model: str = "a1", faults: Faults | None = None, seed: int = 0,
-                 link: str | os.PathLike | None = None):
+                 link: str | os.PathLike | None = None, typical: str | None = None):
+        """``typical``: the scan mode (a name in the model's table) advertised as typical
+        instead of the model's own, to try a client on each mode."""
         self.source = source
         self.model = get_model(model)
+        self.typical = self.model.mode(typical).id if typical else self.model.typical
+        self.baud = self.model.baud  # the rate negotiated last (B7)
         self.faults = faults or Faults()
         self.seed = seed
         self.rng = np.random.default_rng(seed)
@@ -236,6 +246,11 @@ class VirtualRPLidar:
         self._tx += p.encode_descriptor(len(payload), mode, answer_type) + payload
 
     def _handle_requests(self) -> None:
+        if self._rx.startswith(bytes((p.AUTOBAUD_MAGIC,)) * 4) and self.model.bauds:
+            # a host negotiating a new rate: answer the rate the link runs at now
+            self._tx += struct.pack("<I", self._link_bps())
+            self._rx.clear()
+            return
         while self._rx:
             parsed = p.decode_request(self._rx)
             if parsed is None:
@@ -264,11 +279,22 @@ class VirtualRPLidar:
             if m.motor != "dtr" and len(payload) == 2:
                 self.motor_on = int.from_bytes(payload, "little") > 0
         elif command in (p.SCAN, p.FORCE_SCAN):
-            self._start_stream("standard")
-            self._tx += p.encode_descriptor(p.NODE_LEN, p.MULTIPLE, p.ANS_NODE)
+            self._start_stream(p.ANS_NODE, STANDARD_US)
         elif command == p.EXPRESS_SCAN:
-            self._start_stream("express")
-            self._tx += p.encode_descriptor(p.CAPSULE_LEN, p.MULTIPLE, m.express_answer)
+            working_mode = payload[0] if payload else 0
+            if working_mode == 0 or not m.modes:  # legacy express: the model's capsules
+                self._start_stream(m.express_answer, self._express_us())
+            elif working_mode < len(m.modes):
+                mode = m.modes[working_mode]
+                self._start_stream(mode.answer_type, mode.us_per_sample)
+            else:
+                self.stats["unknown_requests"] += 1  # no such mode: a real device stays idle
+        elif command == p.NEW_BAUDRATE_CONFIRM:
+            bps = p.decode_baud_confirm(payload)
+            if bps in (m.baud, *m.bauds):
+                self.baud = bps  # a pseudo-terminal carries any rate: only the record
+            else:
+                self.stats["unknown_requests"] += 1
         elif command == p.STOP:
             self.scanning = None
         elif command == p.RESET:
@@ -282,27 +308,47 @@ class VirtualRPLidar:
         if len(payload) < 4:
             return
         conf_type = int.from_bytes(payload[:4], "little")
-        mode = int.from_bytes(payload[4:6], "little") if len(payload) >= 6 else 0
+        modes = self.model.modes
+        k = int.from_bytes(payload[4:6], "little") if len(payload) >= 6 else 0
+        mode = modes[min(k, len(modes) - 1)]
         values = {
-            p.CONF_MODE_COUNT: 2,
-            p.CONF_US_PER_SAMPLE: float(STANDARD_US if mode == 0 else self._express_us()),
-            p.CONF_MAX_DISTANCE: self.model.max_range,
-            p.CONF_ANSWER_TYPE: p.ANS_NODE if mode == 0 else self.model.express_answer,
-            p.CONF_TYPICAL_MODE: 1,
-            p.CONF_MODE_NAME: "Standard" if mode == 0 else "Express",
+            p.CONF_MODE_COUNT: len(modes),
+            p.CONF_US_PER_SAMPLE: mode.us_per_sample,
+            p.CONF_MAX_DISTANCE: mode.max_distance,
+            p.CONF_ANSWER_TYPE: mode.answer_type,
+            p.CONF_TYPICAL_MODE: self.typical,
+            p.CONF_MODE_NAME: mode.name,
         }
         if conf_type in values:
             self._reply(p.ANS_LIDAR_CONF, p.encode_lidar_conf(conf_type, values[conf_type]))
+
+    def _link_bps(self) -> int:
+        """The rate the host set on its end of the pseudo-terminal (termios2's speed)."""
+        try:
+            raw = fcntl.ioctl(self.master, TCGETS2, bytes(44))
+            return struct.unpack_from("<I", raw, 36)[0]
+        except OSError:
+            return self.baud
 
     def _express_us(self) -> int:
         return round(1e6 / self.model.samples_per_second)
 
     # ------------------------------------------------------------------ the stream
-    def _start_stream(self, mode: str) -> None:
-        self.scanning = mode
+    PACKETS = {  # answer type: (descriptor length, samples per packet)
+        p.ANS_NODE: (p.NODE_LEN, 1), p.ANS_CAPSULE: (p.CAPSULE_LEN, 32),
+        p.ANS_DENSE: (p.CAPSULE_LEN, 40), p.ANS_ULTRA: (p.ULTRA_LEN, 96),
+        p.ANS_ULTRA_DENSE: (p.ULTRA_DENSE_LEN, 64), p.ANS_HQ: (p.HQ_LEN, p.HQ_NODES)}
+
+    def _start_stream(self, answer_type: int, us_per_sample: float) -> None:
+        """Answer a scan request with its descriptor, and stream ``answer_type`` packets at
+        one sample per ``us_per_sample``."""
+        length, per_packet = self.PACKETS[answer_type]
+        self._tx += p.encode_descriptor(length, p.MULTIPLE, answer_type)
+        self.scanning = answer_type
+        self._per_packet = per_packet
         self._first_capsule = True
-        self._sample = 0  # samples emitted in the rotation under way
-        rate = 1e6 / STANDARD_US if mode == "standard" else self.model.samples_per_second
+        self._ultra_first = None  # an ultra capsule's first sample, measured ahead (mm)
+        rate = 1e6 / us_per_sample
         self._per_rotation = max(int(round(rate / self.model.scan_hz)), 32)
         self._sample_seconds = 1.0 / rate
         self._angle_q16 = int(self.rng.integers(0, p.FULL_CIRCLE_Q16))  # where the head is
@@ -310,11 +356,15 @@ class VirtualRPLidar:
 
     def _next_packet(self) -> tuple[bytes, float]:
         """The next packet of the stream and how long the device takes to measure it."""
-        if self.scanning == "standard":
-            return self._next_node(), self._sample_seconds
-        dense = self.model.express_answer == p.ANS_DENSE
-        n = 40 if dense else 32
-        return self._next_capsule(dense), n * self._sample_seconds
+        kind = self.scanning
+        seconds = self._per_packet * self._sample_seconds
+        if kind == p.ANS_NODE:
+            return self._next_node(), seconds
+        if kind == p.ANS_HQ:
+            return self._next_hq(), seconds
+        if kind == p.ANS_ULTRA:
+            return self._next_ultra(), seconds
+        return self._next_capsule(kind), seconds
 
     def _step_q16(self) -> int:
         return p.FULL_CIRCLE_Q16 // self._per_rotation
@@ -333,33 +383,86 @@ class VirtualRPLidar:
         self._angle_q16 = (self._angle_q16 + step) % p.FULL_CIRCLE_Q16
         return p.encode_node(quality, angle_q6, dist_q2, start)
 
-    def _next_capsule(self, dense: bool) -> bytes:
-        """A capsule starting at the head's angle; its samples' angles are decoded the SDK's
-        way from this capsule's start and the next one's, so the distances are measured where
-        every client will place them."""
-        n = 40 if dense else 32
+    def _measure(self, angles_deg, starts) -> np.ndarray:
+        """Distances (mm) at these angles, the rotation switching where a sample starts one."""
+        wrap = next((k for k, start in enumerate(starts) if start), len(starts))
+        mm = np.zeros(len(starts))
+        if wrap:
+            mm[:wrap] = self.source.distances(np.asarray(angles_deg[:wrap]))
+        if wrap < len(starts):
+            self._new_rotation()
+            mm[wrap:] = self.source.distances(np.asarray(angles_deg[wrap:]))
+        return mm
+
+    def _advance(self, n: int) -> tuple[int, int, bool]:
+        """This packet's start angle (Q6), the next one's, and whether it is the first."""
         step = self._step_q16()
         start_q6 = self._angle_q16 >> 10
         next_q6 = ((self._angle_q16 + n * step) % p.FULL_CIRCLE_Q16) >> 10
-        offsets = () if dense else tuple(int(v) for v in self.rng.integers(0, 16, n))
-        probe = p.Capsule(start_q6, False, (0,) * n, offsets)
-        samples = p.capsule_samples(probe, next_q6)
-        angles = np.array([s[2] / 64.0 for s in samples])
-        wrap = next((k for k, s in enumerate(samples) if s[0]), n)  # a new rotation starts here
-        mm = np.zeros(n)
-        if wrap:
-            mm[:wrap] = self.source.distances(angles[:wrap])
-        if wrap < n:
-            self._new_rotation()
-            mm[wrap:] = self.source.distances(angles[wrap:])
-        limit = 0xFFFF if dense else 0x3FFF
-        distances = [min(int(round(d)), limit) for d in mm]
-        first = self._first_capsule
-        self._first_capsule = False
+        first, self._first_capsule = self._first_capsule, False
         self._angle_q16 = (self._angle_q16 + n * step) % p.FULL_CIRCLE_Q16
-        if dense:
+        return start_q6, next_q6, first
+
+    def _next_capsule(self, kind: int) -> bytes:
+        """An express, dense or ultra-dense capsule starting at the head's angle; its samples'
+        angles are decoded the SDK's way from this capsule's start and the next one's, so the
+        distances are measured where every client will place them."""
+        n = self._per_packet
+        start_q6, next_q6, first = self._advance(n)
+        express = kind == p.ANS_CAPSULE
+        offsets = tuple(int(v) for v in self.rng.integers(0, 16, n)) if express else ()
+        if kind == p.ANS_ULTRA_DENSE:
+            probe = p.Capsule(start_q6, False, (0,) * n, ())
+            samples = p.ultra_dense_capsule_samples(probe, next_q6, [0, False])
+        else:
+            samples = p.capsule_samples(p.Capsule(start_q6, False, (0,) * n, offsets), next_q6)
+        mm = self._measure([s[2] / 64.0 for s in samples], [s[0] for s in samples])
+        if kind == p.ANS_ULTRA_DENSE:
+            return p.encode_ultra_dense_capsule(start_q6, first, mm, time_stamp=self._stamp_us())
+        limit = 0xFFFF if kind == p.ANS_DENSE else 0x3FFF
+        distances = [min(int(round(d)), limit) for d in mm]
+        if kind == p.ANS_DENSE:
             return p.encode_dense_capsule(start_q6, first, distances)
         return p.encode_express_capsule(start_q6, first, distances, offsets)
+
+    def _next_ultra(self) -> bytes:
+        """An ultra capsule: each sample measured where the SDK's optical model will put it
+        (its offset depends on the distance: measured at the mean offset, then once more at
+        the offset of that distance), the next capsule's first sample measured ahead."""
+        start_q6, next_q6, first = self._advance(96)
+        probe = p.Capsule(start_q6, False, (0,) * 32, ())
+        after = p.Capsule(next_q6, False, (0,) * 32, ())
+        nominal = p.ultra_capsule_samples(probe, after)  # at no distance: the mean offset
+        mean = p._ultra_offset_q16(0) / 65536.0
+        angles = np.array([s[2] / 64.0 + mean for s in nominal])  # the head's angles
+        starts = [s[0] for s in nominal]
+        mm = self._measure(angles - mean, starts)
+        refined = np.array([p._ultra_offset_q16(int(d) * 4) / 65536.0 for d in mm])
+        mm = self.source.distances(angles - refined)
+        if self._ultra_first is not None:
+            mm[0] = self._ultra_first
+        self._one[0] = (next_q6 / 64.0) - mean
+        self._ultra_first = float(self.source.distances(self._one)[0])
+        distances = [int(round(d)) for d in mm]
+        return p.encode_ultra_capsule(start_q6, first, distances, int(round(self._ultra_first)))
+
+    def _next_hq(self) -> bytes:
+        """An HQ capsule: 96 nodes with their own angles (Q14) and rotation flags."""
+        step = self._step_q16()
+        nodes = []
+        for _ in range(p.HQ_NODES):
+            start = self._angle_q16 < step
+            if start:
+                self._new_rotation()
+            z = (self._angle_q16 * 16384) // (90 << 16)  # Q14 of 90°
+            self._one[0] = z * 90.0 / 16384.0
+            dist_q2 = min(int(round(float(self.source.distances(self._one)[0]) * 4)), 2**32 - 1)
+            nodes.append((z, dist_q2, 188 if dist_q2 else 0, start))
+            self._angle_q16 = (self._angle_q16 + step) % p.FULL_CIRCLE_Q16
+        return p.encode_hq_capsule(nodes, self._stamp_us())
+
+    def _stamp_us(self) -> int:
+        return int(time.monotonic() * 1e6)
 
     def _new_rotation(self) -> None:
         self.stats["rotations"] += 1

@@ -12,6 +12,7 @@ The decoders return ``None`` for a malformed unit instead of raising; the stream
 from __future__ import annotations
 
 import struct
+import zlib
 from dataclasses import dataclass
 
 SYNC = 0xA5
@@ -32,6 +33,7 @@ SINGLE, MULTIPLE = 0, 1
 DESCRIPTOR_LEN = 7
 NODE_LEN = 5
 CAPSULE_LEN = 84  # legacy express and dense alike
+ULTRA_LEN, ULTRA_DENSE_LEN, HQ_LEN = 132, 170, 781  # B6
 INFO_LEN, HEALTH_LEN, SAMPLERATE_LEN = 20, 3, 4
 
 # B3: GET_LIDAR_CONF types.
@@ -84,6 +86,26 @@ def decode_request(data: bytes, offset: int = 0):
     if xor(data[offset : end - 1]) != data[end - 1]:
         return None, None, 1
     return command, bytes(data[offset + 3 : end - 1]), end - offset
+
+
+# B7: baud negotiation (S/A-series firmware that supports it, as the SDK's
+# negotiateSerialBaudRate): the host, already at the new rate, sends AUTOBAUD_MAGIC bytes until
+# the device answers with the rate it measured (u32), then confirms with NEW_BAUDRATE_CONFIRM
+# {flag u16 = BAUD_CONFIRM_FLAG, required bps u32, param u16}; unconfirmed, the device reverts.
+AUTOBAUD_MAGIC = 0x41
+BAUD_CONFIRM_FLAG = 0x5F5F
+
+
+def baud_confirm_payload(bps: int) -> bytes:
+    return struct.pack("<HIH", BAUD_CONFIRM_FLAG, bps, 0)
+
+
+def decode_baud_confirm(payload: bytes) -> int | None:
+    """The confirmed rate, or None if the payload is not a confirmation."""
+    if len(payload) != 8:
+        return None
+    flag, bps, _ = struct.unpack("<HIH", payload)
+    return bps if flag == BAUD_CONFIRM_FLAG else None
 
 
 def express_payload(working_mode: int = 0, flags: int = 0, param: int = 0) -> bytes:
@@ -266,12 +288,13 @@ def encode_dense_capsule(start_angle_q6: int, start: bool, distances_mm) -> byte
     return _capsule_header(start_angle_q6, start, struct.pack("<40H", *(int(d) for d in distances_mm)))
 
 
-def check_capsule(data, offset: int = 0) -> int:
-    """0: a well-formed capsule at ``offset``; 1: bad sync nibbles; 2: checksum mismatch."""
+def check_capsule(data, offset: int = 0, length: int = CAPSULE_LEN) -> int:
+    """0: a well-formed capsule of ``length`` bytes at ``offset``; 1: bad sync nibbles;
+    2: checksum mismatch (every capsule format sums its bytes from the third on)."""
     b0, b1 = data[offset], data[offset + 1]
     if b0 >> 4 != 0xA or b1 >> 4 != 0x5:
         return 1
-    if xor(data[offset + 2 : offset + CAPSULE_LEN]) != ((b0 & 0xF) | ((b1 & 0xF) << 4)):
+    if xor(data[offset + 2 : offset + length]) != ((b0 & 0xF) | ((b1 & 0xF) << 4)):
         return 2
     return 0
 
@@ -325,4 +348,217 @@ def capsule_samples(previous: Capsule, current_start_angle_q6: int):
         start = ((angle_q16 + inc_q16) % FULL_CIRCLE_Q16) < inc_q16
         angle_q16 += inc_q16
         out.append((start, SYNTHETIC_QUALITY if dist > 0 else 0, angle_q6, dist << 2))
+    return out
+
+
+# ---------------------------------------------------------------------- B6 ultra capsules
+# Ultra (0x84, A2/A3 "Boost", "Sensitivity", "Stability"): header, then 32 u32 cabins of three
+# samples — a 12-bit major distance in a variable-bit scale and two signed 10-bit predictions
+# from it and from the next cabin's major. Angles carry no offsets: the SDK models the optics
+# (a distance-dependent offset of about 8°), and so do we, in its fixed point.
+VBS_LEVELS = ((3328, 4, 1 << 14), (1792, 3, 1 << 12), (1280, 2, 1 << 11), (512, 1, 1 << 9),
+              (0, 0, 0))  # (scaled base, scale level, distance base) from ×16 down to ×1
+PREDICT_INVALID = (0x1FF, -0x200)  # a prediction with these values means "no return"
+
+
+def varbitscale_decode(scaled: int) -> tuple[int, int]:
+    """A 12-bit major distance → (mm, scale level)."""
+    for base, level, target in VBS_LEVELS:
+        if scaled >= base:
+            return target + ((scaled - base) << level), level
+    return 0, 0
+
+
+def varbitscale_encode(mm: int) -> int:
+    """The 12-bit code whose decoding is nearest ``mm`` (from below: codes truncate)."""
+    for base, level, target in VBS_LEVELS:
+        if mm >= target:
+            return min(base + ((mm - target) >> level), 0xFFF)
+    return 0
+
+
+def _signed10(v: int) -> int:
+    v &= 0x3FF
+    return v - 0x400 if v & 0x200 else v
+
+
+def encode_ultra_capsule(start_angle_q6: int, start: bool, distances_mm,
+                         next_first_mm: int) -> bytes:
+    """An ultra capsule (0x84): 96 distances (mm); ``next_first_mm`` is the next capsule's
+    first sample, the base the last cabin's third sample is predicted from. A sample whose
+    prediction does not fit 10 bits is sent as "no return", as the device does at an edge."""
+    if len(distances_mm) != 96:
+        raise ValueError("an ultra capsule holds 96 samples")
+    majors = [varbitscale_encode(int(distances_mm[3 * c])) for c in range(32)]
+    majors.append(varbitscale_encode(int(next_first_mm)))
+    body = bytearray()
+    for c in range(32):
+        base1, level1 = varbitscale_decode(majors[c])
+        base2, level2 = varbitscale_decode(majors[c + 1])
+        if base1 == 0 and base2:
+            base1, level1 = base2, level2
+        predictions = []
+        for d, base, level in ((distances_mm[3 * c + 1], base1, level1),
+                               (distances_mm[3 * c + 2], base2, level2)):
+            d = int(d)
+            q = round((d - base) / (1 << level)) if d > 0 else PREDICT_INVALID[0]
+            if d <= 0 or not -0x200 < q < 0x1FF or base + (q << level) <= 0:
+                q = PREDICT_INVALID[0]
+            predictions.append(q & 0x3FF)
+        body += struct.pack("<I", majors[c] | (predictions[0] << 12) | (predictions[1] << 22))
+    return _capsule_header(start_angle_q6, start, bytes(body))
+
+
+def decode_ultra_capsule(data, offset: int = 0) -> Capsule | None:
+    """An ultra capsule's start angle, flag and 32 raw cabin words (``distances_mm``)."""
+    if len(data) - offset < ULTRA_LEN or check_capsule(data, offset, ULTRA_LEN):
+        return None
+    word = data[offset + 2] | (data[offset + 3] << 8)
+    cabins = struct.unpack_from("<32I", bytes(data[offset + 4 : offset + ULTRA_LEN]))
+    return Capsule(word & 0x7FFF, bool(word & 0x8000), cabins, ())
+
+
+_DEFAULT_OPTICAL_Q16 = int(7.5 * 3.1415926535 * (1 << 16) / 180.0)  # 7.5°, rad in Q16
+_NEAR_OPTICAL_Q16 = int(8 * 3.1415926535 * (1 << 16) / 180)  # 8°
+
+
+def _ultra_offset_q16(distance_q2: int) -> int:
+    """The optical angle offset of an ultra sample, in degrees Q16 as the SDK computes it
+    (a rational fit in the distance; integer steps as in its fixed point)."""
+    offset = _DEFAULT_OPTICAL_Q16
+    if distance_q2 >= 50 * 4:
+        k2 = 98361 // distance_q2
+        offset = _NEAR_OPTICAL_Q16 - (k2 << 6) - (k2 * k2 * k2) // 98304
+    return int(offset * 180 / 3.14159265)
+
+
+def ultra_capsule_samples(previous: Capsule, current: Capsule):
+    """The 96 samples of ``previous`` once ``current`` arrived (its start angle and first
+    cabin's major): ``(start_of_rotation, quality, angle_q6, distance_q2)``."""
+    prev_q8, cur_q8 = previous.start_angle_q6 << 2, current.start_angle_q6 << 2
+    diff_q8 = cur_q8 - prev_q8 + (360 << 8 if prev_q8 > cur_q8 else 0)
+    inc_q16 = (diff_q8 << 3) // 3
+    angle_q16 = prev_q8 << 8
+    cabins = previous.distances_mm
+    out = []
+    for c in range(32):
+        word = cabins[c]
+        major, level1 = varbitscale_decode(word & 0xFFF)
+        nxt = cabins[c + 1] if c < 31 else current.distances_mm[0]
+        major2, level2 = varbitscale_decode(nxt & 0xFFF)
+        base1 = major
+        if not major and major2:
+            base1, level1 = major2, level2
+        p1, p2 = _signed10(word >> 12), _signed10(word >> 22)
+        dist_q2 = [major << 2,
+                   0 if p1 in PREDICT_INVALID else ((p1 << level1) + base1) << 2,
+                   0 if p2 in PREDICT_INVALID else ((p2 << level2) + major2) << 2]
+        for d in dist_q2:
+            start = ((angle_q16 + inc_q16) % FULL_CIRCLE_Q16) < inc_q16
+            angle_q6 = ((angle_q16 - _ultra_offset_q16(d)) >> 10) % FULL_CIRCLE_Q6
+            angle_q16 += inc_q16
+            out.append((start, SYNTHETIC_QUALITY if d else 0, angle_q6, d))
+    return out
+
+
+# Ultra-dense (0x86): header, a u32 device time stamp, a u16 status, the start angle, then 32
+# cabins of two 20-bit samples (two u16 low parts, one byte of high nibbles). Each sample is a
+# 2-bit scale and a distance and quality sharing the other 18 bits: the nearer, the finer.
+ULTRA_DENSE_SCALES = ((0, 2, 10), (2046, 3, 11), (8187, 4, 12), (24567, 5, 13))  # base mm,
+# mm per step, distance bits; the quality gets the bits left of 18
+
+
+def encode_ultra_dense_capsule(start_angle_q6: int, start: bool, distances_mm,
+                               quality: int = 188, time_stamp: int = 0) -> bytes:
+    """An ultra-dense capsule (0x86): 64 distances (mm), one quality (0–255) for all."""
+    if len(distances_mm) != 64:
+        raise ValueError("an ultra-dense capsule holds 64 samples")
+    values = []
+    for d in distances_mm:
+        d = max(int(d), 0)
+        scale = 0 if d <= 2046 else 1 if d <= 8187 else 2 if d <= 24567 else 3
+        base, step, bits = ULTRA_DENSE_SCALES[scale]
+        steps = min(round((d - base) / step), (1 << bits) - 1)
+        q = (quality >> scale) if d else 0
+        values.append((q << (bits + 2)) | (steps << 2) | scale)
+    body = bytearray()
+    for c in range(32):
+        a, b = values[2 * c], values[2 * c + 1]
+        body += struct.pack("<HHB", a & 0xFFFF, b & 0xFFFF, (a >> 16) | ((b >> 16) << 4))
+    word = struct.pack("<IHH", time_stamp & 0xFFFFFFFF, 0,
+                       start_angle_q6 | (0x8000 if start else 0))
+    chk = xor(word + body)
+    return bytes((0xA0 | (chk & 0xF), 0x50 | (chk >> 4))) + word + bytes(body)
+
+
+def decode_ultra_dense_capsule(data, offset: int = 0) -> Capsule | None:
+    """An ultra-dense capsule's start angle, flag and 64 raw 20-bit samples."""
+    if len(data) - offset < ULTRA_DENSE_LEN or check_capsule(data, offset, ULTRA_DENSE_LEN):
+        return None
+    word = data[offset + 8] | (data[offset + 9] << 8)
+    values = []
+    for c in range(32):
+        lo1, lo2, hi = struct.unpack_from("<HHB", bytes(data[offset + 10 + 5 * c:
+                                                             offset + 15 + 5 * c]))
+        values += [lo1 | ((hi & 0xF) << 16), lo2 | ((hi >> 4) << 16)]
+    return Capsule(word & 0x7FFF, bool(word & 0x8000), tuple(values), ())
+
+
+def ultra_dense_capsule_samples(previous: Capsule, current_start_angle_q6: int, last: list):
+    """The 64 samples of ``previous``; ``last`` carries ``[distance_q2, start]`` of the sample
+    before, across calls: the finest scale averages a distance within 2 mm of the one before
+    with it, and a rotation starts once (the SDK's rule)."""
+    prev_q8, cur_q8 = previous.start_angle_q6 << 2, current_start_angle_q6 << 2
+    diff_q8 = cur_q8 - prev_q8 + (360 << 8 if prev_q8 > cur_q8 else 0)
+    inc_q16 = (diff_q8 << 8) // 64
+    angle_q16 = prev_q8 << 8
+    out = []
+    for v in previous.distances_mm:
+        scale = v & 0x3
+        base, step, bits = ULTRA_DENSE_SCALES[scale]
+        quality = (v >> (bits + 2)) << scale
+        dist_q2 = ((v >> 2) & ((1 << bits) - 1)) * step * 4 + (base << 2)
+        if scale == 0 and last[0] and abs(dist_q2 - last[0]) <= 8:
+            dist_q2 = (dist_q2 + last[0]) >> 1
+        last[0] = dist_q2
+        start = ((angle_q16 + inc_q16) % FULL_CIRCLE_Q16) < (inc_q16 << 1)
+        start = start and not last[1]  # the window spans two samples: the first of them
+        last[1] = start
+        out.append((start, quality, (angle_q16 >> 10) % FULL_CIRCLE_Q6, dist_q2))
+        angle_q16 += inc_q16
+    return out
+
+
+# HQ (0x83): sync byte A5, u64 time stamp, 96 nodes {angle_z_q14 u16 (90° = 16384),
+# dist_mm_q2 u32, quality u8, flag u8 (bit 0: a rotation starts)}, then a CRC-32 (IEEE, the
+# SDK's: over the 777 bytes zero-padded by 1-4 bytes to a multiple of four).
+HQ_NODES = 96
+
+
+def hq_crc(data: bytes) -> int:
+    return zlib.crc32(bytes(data) + bytes(4 - (len(data) & 3)))
+
+
+def encode_hq_capsule(nodes, time_stamp: int = 0) -> bytes:
+    """An HQ capsule from 96 ``(angle_z_q14, dist_mm_q2, quality, start)``."""
+    if len(nodes) != HQ_NODES:
+        raise ValueError(f"an HQ capsule holds {HQ_NODES} nodes")
+    body = bytearray((SYNC,)) + struct.pack("<Q", time_stamp)
+    for z, d, q, start in nodes:
+        body += struct.pack("<HIBB", z, d, q, 1 if start else 2)
+    return bytes(body) + struct.pack("<I", hq_crc(body))
+
+
+def decode_hq_capsule(data, offset: int = 0):
+    """The 96 nodes ``(start, quality, angle_q6, distance_q2)`` of a well-formed HQ capsule
+    (the angle in Q6 degrees as a float: exact), else None."""
+    if len(data) - offset < HQ_LEN or data[offset] != SYNC:
+        return None
+    raw = bytes(data[offset : offset + HQ_LEN])
+    if struct.unpack_from("<I", raw, HQ_LEN - 4)[0] != hq_crc(raw[: HQ_LEN - 4]):
+        return None
+    out = []
+    for k in range(HQ_NODES):
+        z, d, q, flag = struct.unpack_from("<HIBB", raw, 9 + 8 * k)
+        out.append((bool(flag & 1), q, z * 90 * 64 / 16384, d))
     return out

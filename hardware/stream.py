@@ -14,7 +14,8 @@ sink's ``add(start, quality, angle_q6, distance_q2)`` (:class:`hardware.rotation
   (unless an overlapping one is also followed by a node), else at the first node followed by
   a node; after 10 bytes without a node the angle check restarts, so a false node cannot lock
   the parser out.
-* Capsules (express 0x82, dense 0x85): slide until the sync nibbles match; a checksum mismatch
+* Capsules (express 0x82, dense 0x85, ultra 0x84, ultra-dense 0x86; :data:`FORMATS`): slide
+  until the sync nibbles match; a checksum mismatch
   drops the capsule and its cached predecessor (the SDK's rule). The mismatch counts as a
   checksum error once the parser has passed its 84 bytes without finding a good capsule inside
   them — otherwise it was a false sync inside garbage (a resync), and nothing is dropped — so
@@ -23,25 +24,66 @@ sink's ``add(start, quality, angle_q6, distance_q2)`` (:class:`hardware.rotation
   capsule follows it, within 32 bytes of garbage, one step on (sync nibbles and the 8-bit sum
   pass by chance once in 65,536 positions slid over; these checks make a false capsule
   thousands of times rarer still).
-  The angle chain survives garbage between two good capsules; a start angle jumping more than ``max_capsule_step`` from its predecessor
-  (a lost capsule) restarts it.
+  The angle chain survives garbage between two good capsules; a start angle jumping more
+  than ``max_capsule_step`` from its predecessor (a lost capsule) restarts it.
+* HQ capsules (0x83): slide until a sync byte starts 781 bytes whose CRC-32 holds; their nodes
+  carry their own angles and rotation flags.
 """
 
 from __future__ import annotations
 
+from typing import Callable, NamedTuple
+
 from hardware.protocol import (
+    ANS_CAPSULE,
+    ANS_DENSE,
+    ANS_HQ,
+    ANS_NODE,
+    ANS_ULTRA,
+    ANS_ULTRA_DENSE,
     CAPSULE_LEN,
     DESCRIPTOR_LEN,
     FULL_CIRCLE_Q6,
+    HQ_LEN,
     NODE_LEN,
     SYNC,
     SYNC2,
+    ULTRA_DENSE_LEN,
+    ULTRA_LEN,
     capsule_samples,
     check_capsule,
     decode_capsule,
     decode_descriptor,
+    decode_hq_capsule,
     decode_node,
+    decode_ultra_capsule,
+    decode_ultra_dense_capsule,
+    ultra_capsule_samples,
+    ultra_dense_capsule_samples,
 )
+
+
+class CapsuleFormat(NamedTuple):
+    """What differs between the capsule answers: size, where the start angle sits, how a
+    capsule is read, and how its samples come out once the next capsule is in."""
+
+    length: int
+    angle_at: int
+    decode: Callable  # (buffer, offset) -> Capsule
+    samples: Callable  # (previous, current, state) -> [(start, quality, angle_q6, dist_q2)]
+
+
+FORMATS = {
+    ANS_CAPSULE: CapsuleFormat(CAPSULE_LEN, 2, lambda b, i: decode_capsule(b, i, False),
+                               lambda prev, cur, state: capsule_samples(prev, cur.start_angle_q6)),
+    ANS_DENSE: CapsuleFormat(CAPSULE_LEN, 2, lambda b, i: decode_capsule(b, i, True),
+                             lambda prev, cur, state: capsule_samples(prev, cur.start_angle_q6)),
+    ANS_ULTRA: CapsuleFormat(ULTRA_LEN, 2, decode_ultra_capsule,
+                             lambda prev, cur, state: ultra_capsule_samples(prev, cur)),
+    ANS_ULTRA_DENSE: CapsuleFormat(
+        ULTRA_DENSE_LEN, 8, decode_ultra_dense_capsule,
+        lambda prev, cur, state: ultra_dense_capsule_samples(prev, cur.start_angle_q6, state)),
+}
 
 
 class StreamStats:
@@ -192,19 +234,19 @@ class NodeStream(_Parser):
             self.last_angle = -1
 
 
-def _start_q6(buf, i: int) -> int:
-    return (buf[i + 2] | (buf[i + 3] << 8)) & 0x7FFF
-
-
 class CapsuleStream(_Parser):
-    """Express (0x82, 32 samples) or dense (0x85, 40 samples) capsules."""
+    """Express (0x82, 32 samples), dense (0x85, 40), ultra (0x84, 96) or ultra-dense (0x86,
+    64) capsules: ``answer_type`` (or ``dense`` for 0x85 over 0x82)."""
 
     GAP = 32  # bytes of garbage tolerated between a capsule and the one confirming it
 
     def __init__(self, sink, dense: bool = False, stats: StreamStats | None = None,
-                 max_capsule_step_deg: float = 90.0):
+                 max_capsule_step_deg: float = 90.0, answer_type: int | None = None):
         super().__init__(sink, stats)
-        self.dense = dense
+        self.answer_type = answer_type or (ANS_DENSE if dense else ANS_CAPSULE)
+        self.format = FORMATS[self.answer_type]
+        self.length = self.format.length
+        self.state = [0, False]  # what a format carries from sample to sample (ultra-dense)
         self.previous = None  # the capsule waiting for its successor's start angle
         self.max_step_q6 = int(max_capsule_step_deg * 64)
         self.suspect_end = 0  # bytes left of a capsule whose checksum failed (0: none)
@@ -215,13 +257,13 @@ class CapsuleStream(_Parser):
     def feed(self, data) -> None:
         buf, n = self._append(data)
         stats, i = self.stats, 0
-        while n - i >= CAPSULE_LEN:
-            status = check_capsule(buf, i)
+        while n - i >= self.length:
+            status = check_capsule(buf, i, self.length)
             if status == 0 and (self.suspect_end > 0 or self.resyncing):
                 # after damage a capsule counts only if its angle continues the chain and a
                 # good capsule follows it (up to GAP bytes of garbage later), one step on:
                 # sync nibbles and an 8-bit sum pass by chance once in 65,536 positions
-                if n - i < 2 * CAPSULE_LEN + self.GAP:
+                if n - i < 2 * self.length + self.GAP:
                     break
                 if not self._confirmed(buf, i):
                     status = 1
@@ -229,13 +271,13 @@ class CapsuleStream(_Parser):
                 if self.suspect_end > 0:  # a good capsule inside the suspect: a false sync
                     self.suspect_end = 0
                     stats.resyncs += 1
-                capsule = decode_capsule(buf, i, self.dense)
+                capsule = self.format.decode(buf, i)
                 self._chain(capsule)
                 self.resyncing = False
-                i += CAPSULE_LEN
+                i += self.length
                 continue
             if status == 2 and self.suspect_end <= 0:
-                self.suspect_end = CAPSULE_LEN
+                self.suspect_end = self.length
             self._skip()
             i += 1
         del buf[:i]
@@ -245,7 +287,7 @@ class CapsuleStream(_Parser):
         self.skipped += 1
         if self.suspect_end > 0:
             self.suspect_end -= 1
-            if self.suspect_end == 0:  # 84 bytes with no good capsule: it was corrupt
+            if self.suspect_end == 0:  # a capsule's length with no good one: corrupt
                 self.stats.checksum_errors += 1
                 self.previous = None  # its successor's angles cannot be trusted across it
             self.resyncing = True
@@ -254,14 +296,19 @@ class CapsuleStream(_Parser):
             self.resyncing = True
             self.stats.resyncs += 1
 
+    def _start_q6(self, buf, i: int) -> int:
+        k = i + self.format.angle_at
+        return (buf[k] | (buf[k + 1] << 8)) & 0x7FFF
+
     def _confirmed(self, buf, i: int) -> bool:
-        start = _start_q6(buf, i)
-        if self.last_start >= 0 and self.skipped <= 4 * CAPSULE_LEN:  # else: start afresh
-            lost = 2 + self.skipped // CAPSULE_LEN  # capsules the damage may have taken
+        start = self._start_q6(buf, i)
+        if self.last_start >= 0 and self.skipped <= 4 * self.length:  # else: start afresh
+            lost = 2 + self.skipped // self.length  # capsules the damage may have taken
             if not self._steps(start - self.last_start, lost):
                 return False
-        for j in range(i + CAPSULE_LEN, i + CAPSULE_LEN + self.GAP + 1):
-            if check_capsule(buf, j) == 0 and self._steps(_start_q6(buf, j) - start, 1):
+        for j in range(i + self.length, i + self.length + self.GAP + 1):
+            if (check_capsule(buf, j, self.length) == 0
+                    and self._steps(self._start_q6(buf, j) - start, 1)):
                 return True
         return False
 
@@ -289,6 +336,55 @@ class CapsuleStream(_Parser):
         if step > self.max_step_q6:
             self.stats.resyncs += 1  # out of order: the chain restarts here
             return
-        for start, quality, angle_q6, distance_q2 in capsule_samples(previous, capsule.start_angle_q6):
+        for start, quality, angle_q6, distance_q2 in self.format.samples(previous, capsule,
+                                                                         self.state):
             self.stats.samples += 1
             self.sink.add(start, quality, angle_q6, distance_q2)
+
+
+class HqStream(_Parser):
+    """HQ capsules (0x83): 96 nodes each, checked by CRC-32; a failed check slides one byte
+    (counted as a checksum error once a capsule's length passed without a good one)."""
+
+    def __init__(self, sink, stats: StreamStats | None = None):
+        super().__init__(sink, stats)
+        self.suspect_end = 0
+
+    def feed(self, data) -> None:
+        buf, n = self._append(data)
+        stats, i = self.stats, 0
+        while n - i >= HQ_LEN:
+            nodes = decode_hq_capsule(buf, i) if buf[i] == SYNC else None
+            if nodes is not None:
+                if self.suspect_end > 0:
+                    self.suspect_end = 0
+                    stats.resyncs += 1
+                for start, quality, angle_q6, distance_q2 in nodes:
+                    stats.samples += 1
+                    self.sink.add(start, quality, angle_q6, distance_q2)
+                self.resyncing = False
+                i += HQ_LEN
+                continue
+            if buf[i] == SYNC and self.suspect_end <= 0:
+                self.suspect_end = HQ_LEN
+            stats.dropped_bytes += 1
+            if self.suspect_end > 0:
+                self.suspect_end -= 1
+                if self.suspect_end == 0:
+                    stats.checksum_errors += 1
+            elif not self.resyncing:
+                self.resyncing = True
+                stats.resyncs += 1
+            i += 1
+        del buf[:i]
+
+
+def stream_for(answer_type: int, sink, stats: StreamStats | None = None):
+    """The parser for a scan answer type, or None if we do not decode it."""
+    if answer_type == ANS_NODE:
+        return NodeStream(sink, stats)
+    if answer_type == ANS_HQ:
+        return HqStream(sink, stats)
+    if answer_type in FORMATS:
+        return CapsuleStream(sink, stats=stats, answer_type=answer_type)
+    return None

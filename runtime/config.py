@@ -534,17 +534,17 @@ class SlamConfig(Section):
 POINTS_MARGIN = 1.25
 POINTS_SLACK = 64
 MIN_POINTS = 400
-# RPLidar models: (typical samples per second in express mode, rotations per second, range m)
+# RPLidar models: (samples per second of the fastest scan mode, rotations per second, range m)
 # as hardware.models has them (a test keeps the two equal; the core does not import hardware).
-RPLIDAR_MODELS = {"a1": (4000, 5.5, 12.0), "a2": (4000, 10.0, 12.0), "a3": (10000, 10.0, 25.0),
-                  "s1": (9200, 10.0, 40.0), "s2": (32000, 10.0, 30.0), "c1": (5000, 10.0, 12.0)}
+RPLIDAR_MODELS = {"a1": (4000, 5.5, 12.0), "a2": (7874, 10.0, 12.0), "a3": (15873, 10.0, 25.0),
+                  "s1": (9259, 10.0, 40.0), "s2": (32000, 10.0, 30.0), "c1": (5000, 10.0, 12.0)}
 # The simulator's LiDARs (swarmslam_sim.lidar.PRESETS): beams, min and max range.
 SIMULATED_LIDARS = {"rplidar-a1": (360, 0.15, 12.0), "rplidar-a2": (720, 0.15, 12.0),
                     "lms200": (181, 0.05, 50.0)}
 
 
 def rplidar_points(samples_per_second: float, scan_hz: float) -> int:
-    """Points per stored scan for a scanner of this rate (express mode, with margin)."""
+    """Points per stored scan for a scanner of this rate (its fastest mode, with margin)."""
     return max(int(samples_per_second / scan_hz * POINTS_MARGIN) + POINTS_SLACK, MIN_POINTS)
 
 

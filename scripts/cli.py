@@ -20,6 +20,7 @@ from runtime.config import (
     to_toml,
 )
 from runtime.inbox import skipped_text
+from runtime.writers import write_bytes_atomic
 from scripts.run_view import RunWatch
 
 
@@ -212,7 +213,7 @@ def _lidar(args) -> int:
 
     run_live(args.port, args.model, args.mode, args.out, args.rate, args.seconds, args.resume,
              config=_config(args, f"rplidar-{args.model}"), localize=args.localize,
-             watch=RunWatch.from_args(args))
+             watch=RunWatch.from_args(args), baud=args.baud)
     return 0
 
 
@@ -229,7 +230,9 @@ def _emulate(args) -> int:
         source, what = WorldSource(args.world, seed=args.seed), f"world {args.world}"
     faults = Faults.parse(args.faults or "")
     _sigterm_as_ctrl_c()
-    emulator = VirtualRPLidar(source, args.model, faults, args.seed, args.link)
+    emulator = VirtualRPLidar(source, args.model, faults, args.seed, args.link,
+                              typical=args.typical)
+    emulator.record = bool(args.record)
     path = emulator.start()
     print(f"virtual RPLidar {args.model.upper()} ({what}) on {path}")
     print(f"connect with: swarmslam lidar --port {path} --model {args.model}")
@@ -241,6 +244,8 @@ def _emulate(args) -> int:
             time.sleep(1.0)
     finally:
         emulator.stop()
+        if args.record:
+            write_bytes_atomic(args.record, bytes(emulator.sent))
         print(f"emulator: {emulator.stats}")
 
 
@@ -301,7 +306,13 @@ def build_parser() -> argparse.ArgumentParser:
     li = sub.add_parser("lidar", help="live SLAM from an RPLidar (or the emulator) at a fixed rate")
     li.add_argument("--port", required=True, help="serial port, e.g. /dev/rplidar or /dev/ttyUSB0")
     li.add_argument("--model", default="a1", choices=models)
-    li.add_argument("--mode", default="express", choices=["standard", "express"])
+    li.add_argument("--baud", type=_at_least_one,
+                    help="switch the link to this rate after connecting, where the model "
+                         "allows (the A2: 256000)")
+    li.add_argument("--mode", default="typical",
+                    help="scan mode: 'typical' (the scanner's recommended mode, as Slamtec's "
+                         "SDK starts; express on old firmware), 'standard', 'express', or a "
+                         "mode name the scanner lists (Boost, Sensitivity, DenseBoost, ...)")
     li.add_argument("--out", default="swarmslam-live", help="output folder (written on Ctrl-C)")
     li.add_argument("--rate", type=_positive, help="SLAM ticks per second (default: the configuration's, 10)")
     li.add_argument("--seconds", type=_positive, help="stop after this long (default: Ctrl-C)")
@@ -321,6 +332,10 @@ def build_parser() -> argparse.ArgumentParser:
     em.add_argument("--faults", help="e.g. garbage=0.01,corrupt=0.01,stall=10:2,vanish=30:1")
     em.add_argument("--link", help="also make this symlink point at the port (stable name)")
     em.add_argument("--seed", type=int, default=0)
+    em.add_argument("--typical", metavar="MODE",
+                    help="advertise this scan mode of the model as typical (to try a client)")
+    em.add_argument("--record", metavar="FILE",
+                    help="on stopping, write every byte the emulator sent to FILE")
     em.set_defaults(func=_emulate)
 
     demo = sub.add_parser("demo", help="a simulated robot explores the office world with SLAM")

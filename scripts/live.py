@@ -32,14 +32,16 @@ def slam_config_for(model_name: str, rate_hz: float | None = None) -> SlamConfig
     return config if rate_hz is None else override(config, {"runtime.rate_hz": rate_hz})
 
 
-def run_live(port: str, model: str = "a1", mode: str = "express", out_dir="swarmslam-live",
+def run_live(port: str, model: str = "a1", mode: str = "typical", out_dir="swarmslam-live",
              rate_hz: float | None = None, seconds: float | None = None, resume=None,
              echo=print, stop: threading.Event | None = None,
-             config: SlamConfig | None = None, localize=None, watch=None) -> dict:
+             config: SlamConfig | None = None, localize=None, watch=None,
+             baud: int | None = None) -> dict:
     """``config``: the whole configuration (default: the model's preset); ``rate_hz``
     overrides its tick rate. ``resume``: a session extended from wherever the scanner is in
     its map (found first); ``localize``: a session to localize in, never changed.
-    ``watch``: a :class:`scripts.run_view.RunWatch` shown after every tick that took a scan."""
+    ``watch``: a :class:`scripts.run_view.RunWatch` shown after every tick that took a scan.
+    ``baud``: a rate to switch the link to after connecting (where the model allows)."""
     out = Path(out_dir)
     check_writable(out)
     clean_stale(out)
@@ -66,6 +68,9 @@ def run_live(port: str, model: str = "a1", mode: str = "express", out_dir="swarm
 
     lidar = RPLidar(port, model, on_scan=on_scan)
     lidar.connect()
+    if baud is not None:
+        echo(f"{port}: link at {baud} bps (the scanner measured "
+             f"{lidar.negotiate_baud(baud)})")
     info, health = lidar.get_info(), lidar.get_health()
     echo(f"{port}: model 0x{info.model:02X} firmware {info.firmware_major}.{info.firmware_minor:02d} "
          f"hardware {info.hardware} serial {info.serial_hex}; health "

@@ -100,7 +100,7 @@ def test_one_list_of_optimizers_and_kernels():
 def test_presets_agree_with_the_hardware_and_simulator_tables():
     for name, (sps, hz, reach) in RPLIDAR_MODELS.items():
         m = MODELS[name]
-        assert (m.samples_per_second, m.scan_hz, m.max_range) == (sps, hz, reach)
+        assert (m.max_samples_per_second, m.scan_hz, m.max_range) == (sps, hz, reach)
         c = preset(f"rplidar-{name}")
         assert c.sensor.max_points == rplidar_points(sps, hz) and c.map.max_range == reach
     assert preset("rplidar-a1").sensor.max_points == 973  # 4000 / 5.5 × 1.25 + 64

@@ -238,6 +238,8 @@ def test_resuming_with_another_scanner_resizes_and_says_so(small_session):
     same = SlamRuntime.resume(small_session, sensor=SlamRuntime.resume(small_session)
                               .config.sensor)
     assert same.session_note == ""
+    slower = SlamRuntime.resume(small_session, changes={"runtime.rate_hz": 5.0}, sensor=s2)
+    assert slower.config.runtime.rate_hz == 5.0  # --rate is kept on resume
 
 
 # ---------------------------------------------------------------- output sets

@@ -224,3 +224,66 @@ def test_a_failing_consumer_does_not_stop_the_stream(emulator_factory):
         report = lidar.report()
     assert report["on_scan_errors"] >= 3
     assert report["last_on_scan_error"] == "ValueError: consumer bug"
+
+
+@pytest.mark.parametrize("model", ["a1", "a2", "a3", "s1", "s2", "c1"])
+def test_the_driver_reads_the_scan_modes_and_starts_the_typical_one(emulator_factory, model):
+    from hardware.models import model as get_model
+
+    table = get_model(model)
+    emu = emulator_factory(model)
+    scans = Scans()
+    with RPLidar(emu.path, model, on_scan=scans) as lidar:
+        modes = lidar.scan_modes()
+        assert [(m.name, m.answer_type, m.us_per_sample) for m in modes] == [
+            (m.name, m.answer_type, m.us_per_sample) for m in table.modes]
+        assert lidar.typical_mode() == table.typical
+        lidar.start()  # typical by default, as Slamtec's SDK starts
+        scans.wait(3)
+        assert lidar.scan_mode == table.mode("typical")
+        lidar.stop()
+
+
+@pytest.mark.parametrize("model,mode,quantum_m", [
+    ("a2", "Boost", 0.0045),  # ultra capsules: 2-4 mm steps from 0.5 m, the major truncates
+    ("a3", "Stability", 0.0045),
+    ("s2", "HQ", 0.00025),  # HQ nodes: 1/4 mm
+    ("s2", "UltraDense", 0.0035),  # ultra-dense: 3 mm steps beyond 2 m, halved averages
+])
+def test_every_capsule_mode_decodes_to_the_emulators_ranges(emulator_factory, model, mode,
+                                                            quantum_m):
+    emu = emulator_factory(model)
+    scans = Scans()
+    with RPLidar(emu.path, model, on_scan=scans) as lidar:
+        lidar.start(mode)
+        got = scans.wait(4)
+        lidar.stop()
+        report = lidar.report()
+    per_rotation = emu._per_rotation
+    for angles, ranges, _ in got[1:]:
+        assert len(angles) >= 0.97 * per_rotation  # a whole turn (an edge may lose a sample)
+        expected = room(np.degrees(-angles)) / 1000.0
+        assert np.max(np.abs(ranges - expected)) <= quantum_m + 2e-4
+    assert report["checksum_errors"] == 0 and report["resyncs"] == 0
+
+
+def test_an_unknown_scan_mode_is_refused_by_name(emulator_factory):
+    emu = emulator_factory("a2")
+    with RPLidar(emu.path, "a2") as lidar:
+        with pytest.raises(ValueError, match="no scan mode 'Turbo'.*Sensitivity"):
+            lidar.start("Turbo")
+
+
+def test_the_link_switches_baud_where_the_model_allows(emulator_factory):
+    emu = emulator_factory("a2")
+    with RPLidar(emu.path, "a2") as lidar:
+        assert lidar.negotiate_baud(256000) == 256000  # what the scanner measured
+        assert eventually(lambda: emu.baud == 256000)  # confirmed: it stays at the new rate
+        assert lidar.serial.baudrate == 256000
+        assert lidar.get_info().major_model == 2  # and answers there
+        with pytest.raises(ValueError, match="runs at 115200, 256000 bps, not 1000000"):
+            lidar.negotiate_baud(1000000)
+    emu = emulator_factory("a1")
+    with RPLidar(emu.path, "a1") as lidar:
+        with pytest.raises(ValueError, match="the A1 runs at 115200 bps"):
+            lidar.negotiate_baud(256000)

@@ -241,3 +241,55 @@ def test_capsules_after_garbage_and_corruption_are_decoded(dense, seed, chunk):
         if k not in lost:
             assert all(s in got for s in part), (k, sorted(broken))
     assert got <= set(clean_sink.samples)  # nothing decoded that was not sent
+
+
+@given(st.lists(st.integers(150, 12000), min_size=1, max_size=1), st.integers(0, 300))
+def test_ultra_capsule_distances_survive_their_variable_scale(first, start_q6):
+    # a smooth wall: every sample predictable from its cabin's major, within the scale's step
+    d = (first[0] + 3 * np.arange(97)).astype(int)
+    this = p.decode_ultra_capsule(p.encode_ultra_capsule(start_q6, False, d[:96], int(d[96])))
+    after = p.decode_ultra_capsule(p.encode_ultra_capsule(start_q6 + 600, False, d[96:].tolist()
+                                                          * 96, int(d[96])))
+    samples = p.ultra_capsule_samples(this, after)
+    got = np.array([s[3] / 4.0 for s in samples])
+    step = np.array([p.varbitscale_decode(p.varbitscale_encode(int(v)))[1] for v in d[:96]])
+    assert np.all(np.abs(got - d[:96]) <= 2.0 ** (step + 1))  # a truncated major, a rounded step
+    # the optical model: a sample lies behind the head's angle by an offset that grows with
+    # the distance (negative very near) towards 8°
+    heads = (start_q6 + np.arange(96) * 600 / 96) / 64.0
+    offsets = (heads - np.array([s[2] / 64.0 for s in samples]) + 180) % 360 - 180
+    assert np.all((offsets > -2.0) & (offsets < 8.1))
+    assert np.all(np.diff(offsets[got > 0]) > -0.05)  # farther, never less (but rounding)
+    assert np.all(offsets[d[:96] >= 3000] > 7.0)
+
+
+def test_ultra_dense_and_hq_capsules_round_trip_and_refuse_damage():
+    d = np.r_[np.arange(0, 2000, 62), np.arange(2100, 30000, 900)][:64]
+    capsule = p.encode_ultra_dense_capsule(100, True, d)
+    assert len(capsule) == p.ULTRA_DENSE_LEN and p.check_capsule(capsule, 0, p.ULTRA_DENSE_LEN) == 0
+    got = [s[3] / 4.0 for s in p.ultra_dense_capsule_samples(
+        p.decode_ultra_dense_capsule(capsule), 200, [0, False])]
+    assert np.all(np.abs(np.array(got) - d) <= 2.5)  # 2, 3, 4, 5 mm steps by range
+    nodes = [(k * 170, 4000 + k, 188, k == 0) for k in range(p.HQ_NODES)]
+    hq = p.encode_hq_capsule(nodes, time_stamp=7)
+    assert len(hq) == p.HQ_LEN
+    assert [n[3] for n in p.decode_hq_capsule(hq)] == [4000 + k for k in range(p.HQ_NODES)]
+    damaged = bytearray(hq)
+    damaged[100] ^= 0x10
+    assert p.decode_hq_capsule(bytes(damaged)) is None  # the CRC-32 catches it
+
+
+def test_an_hq_stream_resynchronises_after_garbage_and_damage():
+    from hardware.stream import HqStream
+
+    nodes = [(k * 170, 4000 + k, 188, k == 0) for k in range(p.HQ_NODES)]
+    good = p.encode_hq_capsule(nodes)
+    broken = bytearray(good)
+    broken[300] ^= 0xFF
+    sink, stats = Sink(), StreamStats()
+    stream = HqStream(sink, stats)
+    for chunk in (good, bytes([p.SYNC, 1, 2, 3, 0xA5] * 5), bytes(broken), good):
+        stream.feed(chunk)
+    stream.feed(good)  # the last capsule is in once the next one's bytes arrive too
+    assert len(sink.samples) == 3 * p.HQ_NODES
+    assert stats.checksum_errors >= 1 and stats.resyncs >= 1
