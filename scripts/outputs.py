@@ -85,7 +85,7 @@ def output_set(out_dir):
     stage = _staging(out, "staging", os.getpid())
     shutil.rmtree(stage, ignore_errors=True)
     if out.is_dir():  # start from the previous set: what is rewritten replaces a link
-        shutil.copytree(out, stage, copy_function=os.link, symlinks=True)
+        shutil.copytree(out, stage, copy_function=_link_or_copy, symlinks=True)
     else:
         stage.mkdir()
     try:
@@ -98,6 +98,14 @@ def output_set(out_dir):
         os.replace(out, old)
     os.replace(stage, out)
     shutil.rmtree(old, ignore_errors=True)
+
+
+def _link_or_copy(source, target) -> None:
+    """A hard link (free), or a copy where the file system has none (FAT, some shares)."""
+    try:
+        os.link(source, target)
+    except OSError:
+        shutil.copy2(source, target)
 
 
 def check_writable(out_dir) -> None:
