@@ -174,8 +174,9 @@ class RPLidar:
 
     def negotiate_baud(self, bps: int, timeout: float = 1.5) -> int:
         """Switch the link to ``bps`` where the model allows (B7, the SDK's auto-baud): the
-        port reopens at the new rate, magic bytes go out until the scanner answers the rate
-        it measured, and a confirmation makes it stay. Returns the measured rate."""
+        port switches to the new rate, magic bytes go out until the scanner answers the rate
+        it measured, and a confirmation makes it stay. Returns the measured rate. A scanner
+        plugged in again starts at its default rate: a reconnect goes back to it."""
         allowed = (self.model.baud, *self.model.bauds)
         if bps not in allowed:
             raise ValueError(f"the {self.model.name.upper()} runs at "
@@ -349,6 +350,7 @@ class RPLidar:
             self.serial.close()
         except (*PORT_ERRORS, AttributeError):
             pass
+        self.baud = self.model.baud  # re-plugged, the scanner starts at its default rate
         while not self._stop.is_set():
             try:
                 self.connect()

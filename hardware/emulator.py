@@ -105,7 +105,7 @@ class VirtualRPLidar:
         self.master = -1
         self.slave = -1
         self.path = ""
-        self.scanning: str | None = None
+        self.scanning: int | None = None  # the answer type streaming, None when idle
         self.motor_on = self.model.motor == "dtr"  # a pty has no DTR line: A1 always spins
         self.stats = {"requests": 0, "packets": 0, "rotations": 0, "garbage_bytes": 0,
                       "corrupted": 0, "stalls": 0, "vanished": 0, "overflow_bytes": 0,
