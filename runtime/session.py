@@ -173,8 +173,8 @@ class Autosave:
         try:
             write_session(self.path, state)
             self.saves += 1
-        except OSError as exc:
-            self.error = f"autosave to {self.path} failed: {exc}"
+        except Exception as exc:  # noqa: BLE001 — a full disk or anything else: said in the
+            self.error = f"autosave to {self.path} failed: {exc}"  # report; the run goes on
 
     def wait(self) -> None:
         """Let a write in progress finish (before the final save)."""

@@ -4,6 +4,7 @@ packages, which hold the logic."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import signal
 import sys
@@ -200,20 +201,24 @@ def _simlog(args) -> int:
     return 0
 
 
-def _sigterm_as_ctrl_c() -> None:
+@contextlib.contextmanager
+def _sigterm_as_ctrl_c():
     """SIGTERM (how systemd, docker and kill stop a service) stops a live run as Ctrl-C does:
-    the run ends and its outputs are written."""
-    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    the run ends and its outputs are written. The previous handler is back afterwards."""
+    previous = signal.signal(signal.SIGTERM, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _lidar(args) -> int:
     from scripts.live import run_live
 
-    _sigterm_as_ctrl_c()
-
-    run_live(args.port, args.model, args.mode, args.out, args.rate, args.seconds, args.resume,
-             config=_config(args, f"rplidar-{args.model}"), localize=args.localize,
-             watch=RunWatch.from_args(args), baud=args.baud)
+    with _sigterm_as_ctrl_c():
+        run_live(args.port, args.model, args.mode, args.out, args.rate, args.seconds,
+                 args.resume, config=_config(args, f"rplidar-{args.model}"),
+                 localize=args.localize, watch=RunWatch.from_args(args), baud=args.baud)
     return 0
 
 
@@ -229,24 +234,24 @@ def _emulate(args) -> int:
 
         source, what = WorldSource(args.world, seed=args.seed), f"world {args.world}"
     faults = Faults.parse(args.faults or "")
-    _sigterm_as_ctrl_c()
     emulator = VirtualRPLidar(source, args.model, faults, args.seed, args.link,
                               typical=args.typical)
     emulator.record = bool(args.record)
-    path = emulator.start()
-    print(f"virtual RPLidar {args.model.upper()} ({what}) on {path}")
-    print(f"connect with: swarmslam lidar --port {path} --model {args.model}")
-    if faults != Faults():
-        print(f"faults: {faults}")
-    print("Ctrl-C to stop", flush=True)
-    try:
-        while True:
-            time.sleep(1.0)
-    finally:
-        emulator.stop()
-        if args.record:
-            write_bytes_atomic(args.record, bytes(emulator.sent))
-        print(f"emulator: {emulator.stats}")
+    with _sigterm_as_ctrl_c():
+        path = emulator.start()
+        print(f"virtual RPLidar {args.model.upper()} ({what}) on {path}")
+        print(f"connect with: swarmslam lidar --port {path} --model {args.model}")
+        if faults != Faults():
+            print(f"faults: {faults}")
+        print("Ctrl-C to stop", flush=True)
+        try:
+            while True:
+                time.sleep(1.0)
+        finally:
+            emulator.stop()
+            if args.record:
+                write_bytes_atomic(args.record, bytes(emulator.sent))
+            print(f"emulator: {emulator.stats}")
 
 
 def _demo(args) -> int:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 import time
 
 import gymnasium as gym
@@ -105,13 +106,13 @@ class SwarmSlamEnv(gym.Env):
         for name, value in (("max_linear", max_linear), ("max_angular", max_angular),
                             ("robot_radius", robot_radius), ("map_resolution", map_resolution),
                             ("crop", crop)):
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            if not (isinstance(value, numbers.Real) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
         if crop != int(crop):
             raise ValueError(f"crop is a number of cells, got {crop!r}")
         for name, value in (("reward_per_m2", reward_per_m2),
                             ("collision_penalty", collision_penalty)):
-            if not (isinstance(value, (int, float)) and math.isfinite(value)):
+            if not (isinstance(value, numbers.Real) and math.isfinite(value)):
                 raise ValueError(f"{name} must be a finite number, got {value!r}")
         self.render_mode = render_mode
         self.world = get_world(world, world_seed)
