@@ -257,12 +257,23 @@ def decode_node(data, offset: int = 0):
 
 
 # ---------------------------------------------------------------------- B5/B6 capsules
-def _capsule_header(start_angle_q6: int, start: bool, body: bytes) -> bytes:
+def _capsule_header(start_angle_q6: int, start: bool, body: bytes,
+                    prefix: bytes = b"") -> bytes:
+    """Sync nibbles and checksum, then ``prefix`` (the ultra-dense capsule's time stamp and
+    status), the start angle with its flag, and ``body``; the checksum covers all but the
+    first two bytes."""
     if not 0 <= start_angle_q6 < 1 << 15:
         raise ValueError(f"start angle out of range: {start_angle_q6}")
-    word = struct.pack("<H", start_angle_q6 | (0x8000 if start else 0))
+    word = prefix + struct.pack("<H", start_angle_q6 | (0x8000 if start else 0))
     chk = xor(word + body)
     return bytes((0xA0 | (chk & 0xF), 0x50 | (chk >> 4))) + word + body
+
+
+def _start_angles_q8(previous_q6: int, current_q6: int) -> tuple[int, int]:
+    """A capsule's start angle and the angle to the next capsule's, Q8 degrees (B5: a
+    difference past 360° wraps)."""
+    prev_q8, cur_q8 = previous_q6 << 2, current_q6 << 2
+    return prev_q8, cur_q8 - prev_q8 + (360 << 8 if prev_q8 > cur_q8 else 0)
 
 
 def encode_express_capsule(start_angle_q6: int, start: bool, distances_mm, dtheta_q3) -> bytes:
@@ -330,11 +341,7 @@ def capsule_samples(previous: Capsule, current_start_angle_q6: int):
     """Samples of ``previous`` once the next capsule's start angle is known (B5, the SDK's
     fixed point): a list of ``(start_of_rotation, quality, angle_q6, distance_q2)``."""
     n = len(previous.distances_mm)
-    prev_q8 = previous.start_angle_q6 << 2
-    cur_q8 = current_start_angle_q6 << 2
-    diff_q8 = cur_q8 - prev_q8
-    if prev_q8 > cur_q8:
-        diff_q8 += 360 << 8
+    prev_q8, diff_q8 = _start_angles_q8(previous.start_angle_q6, current_start_angle_q6)
     inc_q16 = (diff_q8 << 3) if n == 32 else (diff_q8 << 8) // n
     angle_q16 = prev_q8 << 8
     out = []
@@ -435,8 +442,7 @@ def _ultra_offset_q16(distance_q2: int) -> int:
 def ultra_capsule_samples(previous: Capsule, current: Capsule):
     """The 96 samples of ``previous`` once ``current`` arrived (its start angle and first
     cabin's major): ``(start_of_rotation, quality, angle_q6, distance_q2)``."""
-    prev_q8, cur_q8 = previous.start_angle_q6 << 2, current.start_angle_q6 << 2
-    diff_q8 = cur_q8 - prev_q8 + (360 << 8 if prev_q8 > cur_q8 else 0)
+    prev_q8, diff_q8 = _start_angles_q8(previous.start_angle_q6, current.start_angle_q6)
     inc_q16 = (diff_q8 << 3) // 3
     angle_q16 = prev_q8 << 8
     cabins = previous.distances_mm
@@ -485,10 +491,8 @@ def encode_ultra_dense_capsule(start_angle_q6: int, start: bool, distances_mm,
     for c in range(32):
         a, b = values[2 * c], values[2 * c + 1]
         body += struct.pack("<HHB", a & 0xFFFF, b & 0xFFFF, (a >> 16) | ((b >> 16) << 4))
-    word = struct.pack("<IHH", time_stamp & 0xFFFFFFFF, 0,
-                       start_angle_q6 | (0x8000 if start else 0))
-    chk = xor(word + body)
-    return bytes((0xA0 | (chk & 0xF), 0x50 | (chk >> 4))) + word + bytes(body)
+    return _capsule_header(start_angle_q6, start, bytes(body),
+                           prefix=struct.pack("<IH", time_stamp & 0xFFFFFFFF, 0))
 
 
 def decode_ultra_dense_capsule(data, offset: int = 0) -> Capsule | None:
@@ -508,8 +512,7 @@ def ultra_dense_capsule_samples(previous: Capsule, current_start_angle_q6: int, 
     """The 64 samples of ``previous``; ``last`` carries ``[distance_q2, start]`` of the sample
     before, across calls: the finest scale averages a distance within 2 mm of the one before
     with it, and a rotation starts once (the SDK's rule)."""
-    prev_q8, cur_q8 = previous.start_angle_q6 << 2, current_start_angle_q6 << 2
-    diff_q8 = cur_q8 - prev_q8 + (360 << 8 if prev_q8 > cur_q8 else 0)
+    prev_q8, diff_q8 = _start_angles_q8(previous.start_angle_q6, current_start_angle_q6)
     inc_q16 = (diff_q8 << 8) // 64
     angle_q16 = prev_q8 << 8
     out = []

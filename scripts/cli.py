@@ -465,26 +465,24 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _at_least_one(text: str) -> int:
-    """A count argument: a whole number ≥ 1 (0 or −5 would silently mean "all" or "drop")."""
+def _whole_number(text: str, least: int) -> int:
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    if value < least:
+        raise argparse.ArgumentTypeError(f"must be at least {least}, got {value}")
     return value
+
+
+def _at_least_one(text: str) -> int:
+    """A count argument: a whole number ≥ 1 (0 or −5 would silently mean "all" or "drop")."""
+    return _whole_number(text, 1)
 
 
 def _whole(text: str) -> int:
     """An index argument: a whole number ≥ 0."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be at least 0, got {value}")
-    return value
+    return _whole_number(text, 0)
 
 
 def _finite(text: str) -> float:

@@ -30,6 +30,15 @@ from runtime.writers import write_text_atomic
 MAX_EXTENT = 1000.0  # m per side: a campus floor fits; the ray caster's grid stays small
 
 
+def first_wall_outside(segments, bounds) -> int:
+    """The index of the first segment with an end outside ``bounds``, or -1."""
+    x0, y0, x1, y1 = bounds
+    seg = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
+    outside = ~((seg[:, [0, 2]] >= x0) & (seg[:, [0, 2]] <= x1)
+                & (seg[:, [1, 3]] >= y0) & (seg[:, [1, 3]] <= y1)).all(axis=1)
+    return int(np.argmax(outside)) if outside.any() else -1
+
+
 @dataclass(frozen=True)
 class World:
     name: str
@@ -48,10 +57,8 @@ class World:
         if max(x1 - x0, y1 - y0) > MAX_EXTENT:
             raise ValueError(f"world {self.name!r}: bounds {self.bounds} span "
                              f"{x1 - x0:.6g} × {y1 - y0:.6g} m; at most {MAX_EXTENT:g} m a side")
-        outside = ~((seg[:, [0, 2]] >= x0) & (seg[:, [0, 2]] <= x1)
-                    & (seg[:, [1, 3]] >= y0) & (seg[:, [1, 3]] <= y1)).all(axis=1)
-        if outside.any():
-            k = int(np.argmax(outside))
+        k = first_wall_outside(seg, self.bounds)
+        if k >= 0:
             raise ValueError(f"world {self.name!r}: wall segment {k + 1} "
                              f"{tuple(float(v) for v in seg[k])} leaves the bounds {self.bounds}")
         if not (x0 < self.start[0] < x1 and y0 < self.start[1] < y1):
@@ -132,10 +139,9 @@ def load_world(path) -> World:
         raise DataFormatError(path, 0, "wall", "the world has no walls")
     if not (bounds[0] < start[0] < bounds[2] and bounds[1] < start[1] < bounds[3]):
         raise DataFormatError(path, 0, "start", f"{start[:2]} lies outside bounds {bounds}")
-    for lineno, (x0, y0, x1, y1) in zip(lines, segs):
-        if not all(bounds[0] <= x <= bounds[2] and bounds[1] <= y <= bounds[3]
-                   for x, y in ((x0, y0), (x1, y1))):
-            raise DataFormatError(path, lineno, "wall", f"reaches outside bounds {bounds}")
+    k = first_wall_outside(segs, bounds)
+    if k >= 0:  # World would refuse it too, but without the line
+        raise DataFormatError(path, lines[k], "wall", f"reaches outside bounds {bounds}")
     return World(name, np.array(segs, dtype=np.float64), bounds, start)
 
 

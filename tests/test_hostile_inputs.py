@@ -383,25 +383,32 @@ def test_count_and_duration_arguments_are_checked_before_any_work(argv, capsys):
 
 
 # ---------------------------------------------------------------- live runs stopped hard
-def _live(tmp_path, out, extra=()):
-    link = tmp_path / "lidar"
+def _emulator(tmp_path):
+    """``swarmslam emulate`` on ``tmp_path/lidar``, once it serves."""
     emu = subprocess.Popen([sys.executable, "-m", "scripts.cli", "emulate", "--model", "a1",
-                            "--link", str(link)], stdout=subprocess.PIPE, text=True)
+                            "--link", str(tmp_path / "lidar")], stdout=subprocess.PIPE,
+                           text=True)
     assert "virtual RPLidar" in emu.stdout.readline()
+    return emu
+
+
+def _mapping(tmp_path, out):
+    """``swarmslam lidar`` on the emulator, autosaving every 3 s, once mapping has begun."""
     config = tmp_path / "fast-autosave.toml"
     config.write_text("[runtime]\nautosave_seconds = 3.0\n")
-    live = subprocess.Popen([sys.executable, "-m", "scripts.cli", "lidar", "--port", str(link),
-                             "--model", "a1", "--out", str(out), "--config", str(config),
-                             *extra], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
-    for line in live.stdout:  # mapping has begun
+    live = subprocess.Popen([sys.executable, "-m", "scripts.cli", "lidar", "--port",
+                             str(tmp_path / "lidar"), "--model", "a1", "--out", str(out),
+                             "--config", str(config)], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    for line in live.stdout:
         if "scans/s" in line:
             break
-    return emu, live
+    return live
 
 
 def test_sigterm_saves_and_sigkill_loses_at_most_one_autosave(tmp_path):
-    emu, live = _live(tmp_path, tmp_path / "term")
+    emu = _emulator(tmp_path)
+    live = _mapping(tmp_path, tmp_path / "term")
     try:
         time.sleep(4.0)
         live.send_signal(signal.SIGTERM)  # how systemd and docker stop a service
@@ -411,13 +418,7 @@ def test_sigterm_saves_and_sigkill_loses_at_most_one_autosave(tmp_path):
                      "summary.json"):
             assert (tmp_path / "term" / name).exists(), (name, said)
         killed = tmp_path / "kill"
-        live = subprocess.Popen([sys.executable, "-m", "scripts.cli", "lidar", "--port",
-                                 str(tmp_path / "lidar"), "--model", "a1", "--out",
-                                 str(killed), "--config", str(tmp_path / "fast-autosave.toml")],
-                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        for line in live.stdout:
-            if "scans/s" in line:
-                break
+        live = _mapping(tmp_path, killed)
         time.sleep(8.0)  # more than two autosaves
         live.kill()  # SIGKILL: no handler runs
         live.wait(timeout=10)

@@ -94,20 +94,26 @@ def test_silence_is_a_clear_error_not_a_hang():
         os.close(slave)
 
 
+def rotations_in(emulator_factory, model, mode, count=4):
+    """``count`` rotations the driver decodes from an emulated ``model`` scanning in ``mode``,
+    the driver's report, and the samples per rotation the emulator sends."""
+    emu = emulator_factory(model)
+    scans = Scans()
+    with RPLidar(emu.path, model, on_scan=scans) as lidar:
+        lidar.start(mode)
+        got = scans.wait(count)
+        lidar.stop()
+        report = lidar.report()
+    return got, report, emu._per_rotation
+
+
 @pytest.mark.parametrize("model,mode,quantum_m", [
     ("a1", "standard", 0.00025),  # distances in 1/4 mm
     ("a1", "express", 0.001),  # legacy capsules: whole mm
     ("s2", "express", 0.001),  # dense capsules: whole mm
 ])
 def test_scans_decode_to_the_emulators_ranges(emulator_factory, model, mode, quantum_m):
-    emu = emulator_factory(model)
-    scans = Scans()
-    with RPLidar(emu.path, model, on_scan=scans) as lidar:
-        lidar.start(mode)
-        got = scans.wait(4)
-        lidar.stop()
-        report = lidar.report()
-    per_rotation = emu._per_rotation
+    got, report, per_rotation = rotations_in(emulator_factory, model, mode)
     for angles, ranges, _ in got:
         assert abs(len(angles) - per_rotation) <= 1
         # the scene at the decoded (robot-frame, counter-clockwise) angles
@@ -252,14 +258,7 @@ def test_the_driver_reads_the_scan_modes_and_starts_the_typical_one(emulator_fac
 ])
 def test_every_capsule_mode_decodes_to_the_emulators_ranges(emulator_factory, model, mode,
                                                             quantum_m):
-    emu = emulator_factory(model)
-    scans = Scans()
-    with RPLidar(emu.path, model, on_scan=scans) as lidar:
-        lidar.start(mode)
-        got = scans.wait(4)
-        lidar.stop()
-        report = lidar.report()
-    per_rotation = emu._per_rotation
+    got, report, per_rotation = rotations_in(emulator_factory, model, mode)
     for angles, ranges, _ in got[1:]:
         assert len(angles) >= 0.97 * per_rotation  # a whole turn (an edge may lose a sample)
         expected = room(np.degrees(-angles)) / 1000.0
