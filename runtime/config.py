@@ -316,17 +316,19 @@ class LoopClosureConfig(Section):
         "nothing is searched for widely (0: never)", ge=0)
     wide_min_gap: int = _setting(100, "nodes just behind the new one left out of the wide "
                                  "search's map (they drifted with it)", ge=1)
-    wide_radius: float = _setting(30.0, "m: half-width of the square of positions searched "
+    wide_radius: float = _setting(60.0, "m: half-width of the square of positions searched "
                                   "around the graph's estimate", gt=0)
     wide_angle: float = _setting(0.5, "rad: headings searched either side of the estimate's",
                                  gt=0)
-    wide_resolution: float = _setting(0.2, "m per cell of the wide search's hit grid", gt=0)
+    wide_resolution: float = _setting(0.4, "m per cell of the wide search's hit grid", gt=0)
     wide_hit_sigma: float = _setting(0.2, "m: a point this far from a surface scores e^(-1/2)",
                                      gt=0)
     wide_levels: int = _setting(6, "pyramid levels above the hit grid (blocks of 2^levels cells)",
                                 ge=1, le=10)
-    wide_query_range: float = _setting(12.0, "m: the node scan's points beyond are not used (it "
-                                       "also sets the heading step)", gt=0)
+    wide_query_range: float = _setting(12.0, "m: the query's points farther from the node are "
+                                       "not used (it also sets the heading step)", gt=0)
+    wide_query_nodes: int = _setting(5, "node scans forming the query: the node's and those of "
+                                     "the nodes just before it, placed by the graph", ge=1)
     wide_query_points: int = _setting(128, "query points at most (thinned evenly)", ge=8)
     wide_min_score: float = _setting(0.7, "mean hit value (0-1) a proposal needs", gt=0, le=1)
     wide_ratio: float = _setting(0.9, "a distinct pose scoring this share of the best makes the "

@@ -143,16 +143,25 @@ def rotate_query(points, n, res, step, n_headings, offsets):
 
 
 @njit(cache=True, inline="always")
-def _score(bounds, h, shift, offsets, a, n, i, j):
+def _score(bounds, h, shift, offsets, a, n, i, j, floor):
+    """The query's score at heading ``a`` and cell ``(i, j)`` of ``bounds[h]`` — or, once the
+    points left cannot lift it to ``floor``, some value below ``floor`` (the caller drops it:
+    the same search, most blocks given up after a few points)."""
     ny, nx = bounds.shape[1], bounds.shape[2]
     total = 0
+    slack = n * HIT_MAX - floor  # what the points may still fall short of HIT_MAX
     i -= shift
     j -= shift
     for k in range(n):
         r = i + offsets[a, k, 0]
         q = j + offsets[a, k, 1]
+        v = 0
         if 0 <= r < ny and 0 <= q < nx:
-            total += bounds[h, r, q]
+            v = bounds[h, r, q]
+        total += v
+        slack -= HIT_MAX - v
+        if slack < 0:
+            return total  # < floor: HIT_MAX for every point left would not reach it
     return total
 
 
@@ -238,7 +247,8 @@ def branch_and_bound(bounds, shifts, groups, free, offsets, n_points, n_headings
             for j in range(0, nx, w):
                 if free[top, i, j] == 0:
                     continue
-                s = _score(bounds, top, shifts[top], offsets, a + g // 2, n_points, i, j)
+                s = _score(bounds, top, shifts[top], offsets, a + g // 2, n_points, i, j,
+                           min_score)
                 scored += 1
                 if s < min_score:
                     continue
@@ -288,7 +298,7 @@ def branch_and_bound(bounds, shifts, groups, free, offsets, n_points, n_headings
                         if ii >= ny or jj >= nx or free[h - 1, ii, jj] == 0:
                             continue
                         cs = _score(bounds, h - 1, shifts[h - 1], offsets, aa + cg // 2,
-                                    n_points, ii, jj)
+                                    n_points, ii, jj, floor)
                         scored += 1
                         if cs < floor:
                             continue
@@ -334,7 +344,7 @@ def refine_candidates(hits, free, offsets, n_points, n_headings, candidates, n_c
                     for j in range(max(cj - window_cells, 0), min(cj + window_cells + 1, nx)):
                         if free[0, i, j] == 0:
                             continue
-                        s = _score(hits, 0, 0, offsets, a, n_points, i, j)
+                        s = _score(hits, 0, 0, offsets, a, n_points, i, j, best + 1)
                         scored += 1
                         if s > best:
                             best, ba, bi, bj = s, a, i, j

@@ -15,7 +15,8 @@ only if
 * no distinct pose (farther than ``wide_distinct_distance``) scores ``wide_ratio`` of it — in a
   corridor every position along it fits, and a closure there would be a guess,
 * it lies inside the window, not on its edge (the optimum could lie beyond),
-* the previous node's search found the same correction of the graph (the best pose less the
+* a search whose query shares no scan with this one (of a node ``wide_query_nodes`` to twice
+  that many back) found the same correction of the graph (the best pose less the
   estimate) within ``wide_agreement``: two scans taken apart agree on where the robot is.
 
 The proposal then goes through the rest of the loop closure — the swarm's alignment against
@@ -46,6 +47,7 @@ from runtime.place_search import (
     select_query,
 )
 from runtime.pose import between_nb, compose_nb, wrap_angle_nb
+from runtime.scan import PointScan
 
 
 @njit(cache=True)
@@ -118,6 +120,7 @@ class WideLoopSearch:
         self.step = heading_step(res, c.wide_query_range)
         self.n_headings = 2 * int(math.ceil(c.wide_angle / self.step)) + 1
         self._query = np.zeros((max_points, 2))
+        self._recent = PointScan(max_points * c.wide_query_nodes)
         self._turned = np.zeros((c.wide_query_points, 2))
         self._offsets = np.zeros((self.n_headings, c.wide_query_points, 2), np.int64)
         self._roots = np.zeros((self.n_headings * (-(-n // top)) ** 2, 5), np.int64)
@@ -130,25 +133,31 @@ class WideLoopSearch:
         self.proposed = 0  # proposals made
         self.ambiguous = 0  # refused: a distinct pose scored nearly as well
         self.at_edge = 0  # refused: the best lay on the window's edge
-        self.disagreed = 0  # refused: the previous node's search found another correction
-        self.last_node = -1  # the node of the last unique best, and the correction it found
-        self.correction = np.zeros(3)
+        self.disagreed = 0  # refused: no earlier, separate search found the same correction
+        # the last unique bests: their nodes (-1: none) and the corrections they found, kept
+        # for as far back as a disjoint query's search may lie (2 × wide_query_nodes)
+        self.recent_nodes = np.full(2 * c.wide_query_nodes, -1, np.int64)
+        self.recent_corrections = np.zeros((2 * c.wide_query_nodes, 3))
+        self._next = 0  # the slot the next unique best goes to
         self._z = np.zeros(3)  # the proposal's relative pose
 
     def propose(self, poses, nodes, node: int):
         """``(anchor, z)``: the old node nearest to where ``node``'s scan fits, and ``node``'s
         pose in that node's frame — or None (no old node within reach, no pose scoring
-        ``wide_min_score``, a rival, the best on the window's edge, or the previous node's
-        search finding another correction)."""
+        ``wide_min_score``, a rival, the best on the window's edge, or no earlier, separate
+        search finding the same correction)."""
         c = self.config
         res = c.wide_resolution
-        distance, angle = c.wide_agreement
         old = node - c.wide_min_gap
         if old <= 0:
             return None
         x, y, t = float(poses[node, 0]), float(poses[node, 1]), float(poses[node, 2])
         n_old = nodes_within(poses, old, x, y, c.wide_radius + c.wide_query_range, self._index)
-        n_query = select_query(nodes.points[node], nodes.counts[node], c.wide_query_range, res,
+        # the query: the node's scan and its predecessors' placed by the graph, a stretch of
+        # path whose extent tells one corridor from another where one scan cannot
+        recent = nodes.place(poses, range(max(node - c.wide_query_nodes + 1, 0), node + 1),
+                             node, self._recent)
+        n_query = select_query(recent.buffer, recent.count, c.wide_query_range, res,
                                c.wide_query_points, self._query)
         if n_old == 0 or n_query < 3:
             return None
@@ -181,12 +190,12 @@ class WideLoopSearch:
             self.at_edge += 1
             return None
         bx, by, bt = ox + j * res, oy + i * res, first + a * self.step
-        px, py, pt = compose_nb(*self.correction, x, y, t)  # where the last correction puts it
-        agrees = (self.last_node == node - 1 and math.hypot(px - bx, py - by) <= distance
-                  and abs(wrap_angle_nb(pt - bt)) <= angle)
-        self.last_node = node
+        agrees = self._agrees(node, x, y, t, bx, by, bt)
         # the correction C with C ⊕ estimate = best: best ⊕ estimate⁻¹
-        self.correction[:] = compose_nb(bx, by, bt, *between_nb(0.0, 0.0, 0.0, x, y, t))
+        k = self._next
+        self.recent_nodes[k] = node
+        self.recent_corrections[k] = compose_nb(bx, by, bt, *between_nb(0.0, 0.0, 0.0, x, y, t))
+        self._next = (k + 1) % len(self.recent_nodes)
         if not agrees:
             self.disagreed += 1
             return None
@@ -194,6 +203,21 @@ class WideLoopSearch:
         self.proposed += 1
         self._z[:] = between_nb(bx, by, bt, poses[anchor, 0], poses[anchor, 1], poses[anchor, 2])
         return anchor, self._z
+
+    def _agrees(self, node, x, y, t, bx, by, bt) -> bool:
+        """Whether a search whose query shares no scan with ``node``'s — of a node
+        ``wide_query_nodes`` to twice that many back — found a correction that puts the
+        estimate ``(x, y, t)`` within ``wide_agreement`` of the best ``(bx, by, bt)``: two
+        separate looks agree on where the robot is."""
+        q = self.config.wide_query_nodes
+        distance, angle = self.config.wide_agreement
+        for k in range(len(self.recent_nodes)):
+            if not node - 2 * q <= self.recent_nodes[k] <= node - q:
+                continue
+            px, py, pt = compose_nb(*self.recent_corrections[k], x, y, t)
+            if math.hypot(px - bx, py - by) <= distance and abs(wrap_angle_nb(pt - bt)) <= angle:
+                return True
+        return False
 
     def members(self, poses, node: int, anchor: int, z, out) -> int:
         """The old nodes (as many as ``out`` holds) nearest to where ``z`` in ``anchor``'s
@@ -215,12 +239,18 @@ class WideLoopSearch:
 
     def state(self) -> dict:
         return {"counts": np.array(list(self.counts().values()), np.int64),
-                "last_node": self.last_node, "correction": self.correction.copy()}
+                "recent_nodes": self.recent_nodes.copy(),
+                "recent_corrections": self.recent_corrections.copy(), "next": self._next}
 
     def restore(self, state: dict) -> None:
         (self.searches, self.proposed, self.ambiguous, self.at_edge,
          self.disagreed) = (int(v) for v in state["counts"])
-        self.last_node = int(state["last_node"])
-        if self.last_node < -1 or not np.all(np.isfinite(state["correction"])):
-            raise ValueError("the wide loop search's last correction is not one it makes")
-        self.correction[:] = state["correction"]
+        nodes, corrections = state["recent_nodes"], state["recent_corrections"]
+        if (nodes.shape != self.recent_nodes.shape
+                or corrections.shape != self.recent_corrections.shape
+                or np.any(nodes < -1) or not np.all(np.isfinite(corrections))
+                or not 0 <= int(state["next"]) < len(nodes)):
+            raise ValueError("the wide loop search's recent corrections are not ones it makes "
+                             "(another wide_query_nodes?)")
+        self.recent_nodes[:], self.recent_corrections[:] = nodes, corrections
+        self._next = int(state["next"])

@@ -16,7 +16,12 @@ from runtime.warm_up import room_world, scan_at
 from runtime.wide_loop_search import WideLoopSearch
 
 ANGLES = np.linspace(-np.pi, np.pi, 360, endpoint=False)
-CONFIG = override(SlamConfig(), {"loop_closure.wide_min_gap": 5})
+# queries of two node scans (a search's separate second look is two or more nodes back), on
+# a grid fine enough for the room's small boxes
+CONFIG = override(SlamConfig(), {"loop_closure.wide_min_gap": 5,
+                                 "loop_closure.wide_query_nodes": 2,
+                                 "loop_closure.wide_resolution": 0.2,
+                                 "loop_closure.wide_radius": 30.0})
 DRIFT = np.array([6.0, -4.0, 0.2])  # what a long loop did to the graph's estimate of the return
 
 
@@ -43,7 +48,7 @@ def building():
     """A 30 × 20 m room full of boxes: the robot maps a row, drives off and comes back."""
     world = room_world(3, size=(30.0, 20.0), boxes=40, walls=3)
     xs = np.linspace(3.0, 27.0, 12)
-    back = (10.0, 8.5, 7.0, 5.5)  # returning past the first nodes, the other way
+    back = (12.0, 10.5, 9.0, 7.5, 6.0, 4.5)  # returning past the first nodes, the other way
     truth = [(x, 10.0, 0.0) for x in xs] + [(x, 10.2, math.pi) for x in back]
     return world, np.array(truth)
 
@@ -52,33 +57,43 @@ def test_a_return_after_a_long_drift_is_placed_where_its_scan_fits(building):
     world, truth = building
     poses, nodes = graph_of(world, truth, 12)
     wide = search()
-    assert wide.propose(poses, nodes, 12) is None  # one scan alone proposes nothing
+    assert wide.propose(poses, nodes, 13) is None  # one look alone proposes nothing
     assert wide.disagreed == 1 and wide.searches == 1
-    found = wide.propose(poses, nodes, 13)  # the next agrees: a proposal
+    found = wide.propose(poses, nodes, 15)  # a separate look (no scan shared) agrees
     assert found is not None and wide.proposed == 1
     anchor, z = found
-    assert anchor < 13 - CONFIG.loop_closure.wide_min_gap
+    assert anchor < 15 - CONFIG.loop_closure.wide_min_gap
     placed = compose(truth[anchor], z)  # the old node is where it was mapped
-    assert math.hypot(*(placed[:2] - truth[13, :2])) < 0.3
-    assert abs(wrap_angle(placed[2] - truth[13, 2])) < 0.03
+    assert math.hypot(*(placed[:2] - truth[15, :2])) < 0.3
+    assert abs(wrap_angle(placed[2] - truth[15, 2])) < 0.03
 
 
-def test_disagreeing_consecutive_searches_propose_nothing(building):
+def test_searches_sharing_a_scan_are_not_two_looks(building):
     world, truth = building
     poses, nodes = graph_of(world, truth, 12)
-    poses[13] = compose([0.0, 1.5, 0.0], poses[13])  # the next node drifted another 1.5 m
     wide = search()
-    assert wide.propose(poses, nodes, 12) is None
     assert wide.propose(poses, nodes, 13) is None
+    assert wide.propose(poses, nodes, 14) is None  # its query holds node 13's scan too
     assert wide.disagreed == 2 and wide.proposed == 0
+    assert wide.propose(poses, nodes, 15) is not None  # node 13's search is a second look
+
+
+def test_disagreeing_separate_searches_propose_nothing(building):
+    world, truth = building
+    poses, nodes = graph_of(world, truth, 12)
+    poses[14:] = compose([0.0, 1.5, 0.0], poses[14:])  # from node 14, another 1.5 m drift
+    wide = search()
+    for node in (13, 15, 16):
+        assert wide.propose(poses, nodes, node) is None
+    assert wide.disagreed == 3 and wide.proposed == 0
 
 
 def test_a_featureless_corridor_is_ambiguous_not_a_closure():
     world = np.array([[0.0, 0.0, 80.0, 0.0], [0.0, 3.0, 80.0, 3.0]])  # two long walls
     truth = np.array([(x, 1.5, 0.0) for x in np.arange(20.0, 60.0, 2.0)])
-    poses, nodes = graph_of(world, truth, len(truth) - 2)
+    poses, nodes = graph_of(world, truth, len(truth) - 4)
     wide = search()
-    for node in (len(truth) - 2, len(truth) - 1):
+    for node in (len(truth) - 3, len(truth) - 1):  # two separate looks
         assert wide.propose(poses, nodes, node) is None
     assert wide.ambiguous == 2 and wide.proposed == 0
 
@@ -87,12 +102,12 @@ def test_a_search_allocates_nothing_after_the_first(building):
     world, truth = building
     poses, nodes = graph_of(world, truth, 12)
     wide = search()
-    wide.propose(poses, nodes, 12)
     wide.propose(poses, nodes, 13)
+    wide.propose(poses, nodes, 15)
     tracemalloc.start()
     try:
         before, _ = tracemalloc.get_traced_memory()
-        for node in (12, 13, 14, 15):
+        for node in (13, 14, 15, 16, 17):
             wide.propose(poses, nodes, node)
         after, peak = tracemalloc.get_traced_memory()
     finally:
