@@ -17,7 +17,7 @@ only if
 * it lies inside the window, not on its edge (the optimum could lie beyond),
 * a search whose query shares no scan with this one (of a node ``wide_query_nodes`` to twice
   that many back) found the same correction of the graph (the best pose less the
-  estimate) within ``wide_agreement``: two scans taken apart agree on where the robot is.
+  estimate) within ``wide_agreement``: two separate looks agree on where the robot is.
 
 The proposal then goes through the rest of the loop closure — the swarm's alignment against
 the old nodes nearest to it, the consistency test after optimising. The submap tests of the
