@@ -335,8 +335,9 @@ class LoopClosureConfig(Section):
                                  "search refuse (a corridor, a repeated room)", gt=0, le=1)
     wide_distinct_distance: float = _setting(1.0, "m: poses farther apart are distinct", gt=0)
     wide_agreement: tuple[float, float] = _setting(
-        (0.5, 0.05), "m, rad: a proposal needs the previous node's search to have found the same "
-        "correction of the graph within these", gt=0)
+        (0.5, 0.05), "m, rad: a proposal needs a search sharing no scan with its own (of a node "
+        "wide_query_nodes to twice that many back) to have found the same correction of the "
+        "graph within these", gt=0)
     wide_refine_window: tuple[float, float, float] = _setting(
         (0.3, 0.3, 0.05), "half-widths of the swarm's alignment around a proposal", gt=0)
 

@@ -145,8 +145,8 @@ def rotate_query(points, n, res, step, n_headings, offsets):
 @njit(cache=True, inline="always")
 def _score(bounds, h, shift, offsets, a, n, i, j, floor):
     """The query's score at heading ``a`` and cell ``(i, j)`` of ``bounds[h]`` — or, once the
-    points left cannot lift it to ``floor``, some value below ``floor`` (the caller drops it:
-    the same search, most blocks given up after a few points)."""
+    points left cannot lift it to ``floor``, some value below ``floor``: every caller drops a
+    score below its floor, so the search finds what it found scoring every point."""
     ny, nx = bounds.shape[1], bounds.shape[2]
     total = 0
     slack = n * HIT_MAX - floor  # what the points may still fall short of HIT_MAX

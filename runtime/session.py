@@ -29,7 +29,9 @@ import numpy as np
 from runtime.writers import write_bytes_atomic
 
 FORMAT = "swarmslam-session"
-VERSION = 5  # 5: the wide search's recent corrections; 4: the back end's wide loop search; 3: loop edges carry their own information
+# 5: the wide search's recent corrections; 4: the back end's wide loop search; 3: loop edges
+# carry their own information
+VERSION = 5
 ARRAY = "__array__"  # marks, in the meta, a leaf stored as an archive entry
 
 
