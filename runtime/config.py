@@ -398,6 +398,12 @@ class RelocalizationConfig(Section):
     confirm_seconds: float = _setting(
         2.0, "s of scans over which candidate poses are tracked (or merged) before one is "
         "committed", ge=0)
+    confirm_replay_scans: int = _setting(
+        32, "scans since the search began that a new candidate is tracked back over by "
+        "odometry (their share of confirm_seconds counts; docs/method.md §9)", ge=0)
+    confirm_look: bool = _setting(
+        True, "at the window's end the newest scan is searched again: candidates not among "
+        "its poses are dropped; placed elsewhere alone, that place is confirmed instead")
     max_cells: int = _setting(50_000_000, "cells of the fine hit grid at most (memory: about "
                               "3 bytes per cell, docs/method.md §8)", ge=16)
 

@@ -7,12 +7,13 @@ changes (docs/method.md §9).
 1. searching — no pose (no prior was given, or it was lost): the global search
    (:mod:`runtime.relocalization`, §8) places the scan, or lists the distinct poses that
    explain it about equally well;
-2. confirming — every candidate is tracked (:class:`~runtime.map_tracking.MapTracker`) over
-   the next ``confirm_seconds`` of scans; a candidate whose scans stop fitting is dropped, two
-   that track into one place merge, and after the window a candidate missing the saved
-   surfaces with many more points than the best one (``confirm_misses``) is dropped. One left
-   → tracking; none → searching; several → they stay candidates until the scans tell them
-   apart (a corridor);
+2. confirming — every candidate is tracked (:class:`~runtime.map_tracking.MapTracker`) back
+   over the scans since the search began (by odometry, at most ``confirm_replay_scans``), then
+   forward over the next, until its scans span ``confirm_seconds``; a candidate whose scans
+   stop fitting is dropped, two that track into one place merge, and after the window a
+   candidate missing the saved surfaces with many more points than the best one
+   (``confirm_misses``) is dropped. One left → tracking; none → searching; several → they stay
+   candidates until the scans tell them apart (a corridor);
 3. tracking — Alg. 5 against the saved node scans nearest the pose; ``lost_scans`` poor
    matches in a row → searching.
 
@@ -28,7 +29,8 @@ import numpy as np
 from runtime.config import SlamConfig
 from runtime.front_end import TRAJECTORY_STATUS, odometry_motion
 from runtime.map_tracking import MapTracker, SavedMap
-from runtime.pose import between
+from runtime.node_scans import NodeScans
+from runtime.pose import between, inverse
 from runtime.relocalization import Located, Relocalizer
 from runtime.scan import PointScan
 from runtime.scan_matcher import ScanMatcher
@@ -48,8 +50,16 @@ class Localizer:
         self.trackers = [MapTracker(saved, self.matcher, config)
                          for _ in range(config.relocalization.max_hypotheses)]
         self.n_candidates = 0  # trackers[:n_candidates] follow live hypotheses
+        # the scans since the search began (a ring), for a new candidate to be tracked back over
+        ring = config.relocalization.confirm_replay_scans + 1  # and the scan searched
+        self.recent = NodeScans(ring, config.sensor.max_points)
+        self.recent_stamps = np.zeros(ring)
+        self.recent_motions = np.zeros((ring, 3))  # odometry's motion into each; NaN: none
+        self.n_recent, self._next = 0, 0
+        self._replayed = PointScan(config.sensor.max_points)
         self.phase = SEARCHING
-        self.confirm_until = 0.0
+        self.confirm_until = self.found_at = 0.0
+        self._searched = False  # this scan already
         n = config.capacity.max_scans
         self.stamps = np.zeros(n)
         self.poses = np.full((n, 3), np.nan)  # NaN: no committed pose at that scan
@@ -66,7 +76,7 @@ class Localizer:
     def reset(self, initial_pose=None) -> None:
         """Forget the pose (and odometry): the next scan is searched for, or tracked from
         ``initial_pose``. The trajectory recorded so far stays."""
-        self.phase, self.n_candidates = SEARCHING, 0
+        self.phase, self.n_candidates, self.n_recent = SEARCHING, 0, 0
         self.have_odometry = False
         if initial_pose is not None:
             self._commit_pose(np.asarray(initial_pose, np.float64))
@@ -87,11 +97,14 @@ class Localizer:
         start = clock() if clock is not None else 0.0
         motion = self._odometry_step(odometry)
         error = 0.0
+        self._searched = False
         if self.phase == TRACKING:
             error = self._track(scan, motion)
-        elif self.phase == CONFIRMING:
+        if self.phase != TRACKING:
+            self._remember(scan, motion, stamp)
+        if self.phase == CONFIRMING:
             self._confirm(scan, motion, stamp)
-        if self.phase == SEARCHING:
+        if self.phase == SEARCHING and not self._searched:  # (a second look may have)
             self._search(scan, stamp)
         took = clock() - start if clock is not None else 0.0
         self._record(stamp)
@@ -106,25 +119,79 @@ class Localizer:
             self.counts["poor_matches"] += 1
         if tracker.poor >= self.config.localization.lost_scans:
             self.counts["lost"] += 1
-            self.phase, self.n_candidates = SEARCHING, 0
+            # the scans before were taken where the pose no longer fits: none is replayed
+            self.phase, self.n_candidates, self.n_recent = SEARCHING, 0, 0
         return tracker.error
 
+    def _remember(self, scan, motion, stamp) -> None:
+        """Keep ``scan`` in the ring of scans since the search began."""
+        k = self._next
+        self.recent.store(k, scan)
+        self.recent_stamps[k] = stamp
+        self.recent_motions[k] = np.nan if motion is None else motion
+        self._next = (k + 1) % len(self.recent_stamps)
+        self.n_recent = min(self.n_recent + 1, len(self.recent_stamps))
+
     def _search(self, scan, stamp) -> None:
-        """The global search (§8); its candidates are confirmed over the next scans."""
+        """The global search (§8); its candidates are confirmed over the scans around."""
+        poses = self._look(scan)
+        if poses:
+            self._begin(poses, stamp)
+
+    def _look(self, scan) -> tuple:
+        """The global search's poses for ``scan``: one, several rivals, or none."""
         self.counts["searches"] += 1
+        self._searched = True
         answer = self.relocalizer.relocalize(scan)
-        poses = (answer.pose,) if isinstance(answer, Located) else answer.poses
-        if not isinstance(answer, Located):
-            self.counts["ambiguous_answers" if poses else "empty_answers"] += 1
-        if not poses:
-            return
+        if isinstance(answer, Located):
+            return (answer.pose,)
+        self.counts["ambiguous_answers" if answer.poses else "empty_answers"] += 1
+        return answer.poses
+
+    def _begin(self, poses, stamp) -> None:
+        """Confirm ``poses`` (the newest scan's candidates)."""
         for tracker, pose in zip(self.trackers, poses):
             tracker.start(pose)
         self.n_candidates = min(len(poses), len(self.trackers))
         self.phase = CONFIRMING
-        self.confirm_until = stamp + self.config.relocalization.confirm_seconds
-        if self.config.relocalization.confirm_seconds <= 0 and self.n_candidates == 1:
-            self._commit(0)
+        self.found_at = stamp
+        # a candidate found late is confirmed by the scans before it as well as after
+        earliest = self._replay_backward(stamp)
+        self.confirm_until = earliest + self.config.relocalization.confirm_seconds
+        self._decide(None, stamp)
+
+    def _replay_backward(self, stamp) -> float:
+        """Every candidate (just started at the newest scan) followed back over the scans
+        remembered before it, each predicted by the inverse of odometry's motion, until they
+        span ``confirm_seconds`` or odometry is missing; a candidate that loses track on the
+        way is dropped. Returns the earliest scan's stamp."""
+        ring, confirm = len(self.recent_stamps), self.config.relocalization.confirm_seconds
+        newest = (self._next - 1) % ring
+        earliest, back = stamp, 0
+        while back + 1 < self.n_recent and earliest > stamp - confirm:
+            later = (newest - back) % ring
+            if np.isnan(self.recent_motions[later, 0]):
+                break
+            back += 1
+            earliest = self.recent_stamps[(newest - back) % ring]
+        if back == 0:
+            return stamp
+        motion = self.recent_motions[newest]
+        motion = motion if not np.isnan(motion[0]) else np.zeros(3)
+        lost = set()
+        for tracker in self.trackers[: self.n_candidates]:
+            pose = tracker.pose.copy()
+            for b in range(1, back + 1):
+                k = (newest - b) % ring
+                step = inverse(self.recent_motions[(k + 1) % ring])
+                tracker.follow(self.recent.load(k, self._replayed), step)
+            if tracker.poor >= self.config.localization.lost_scans:
+                lost.add(id(tracker))
+            tracker.rewind(pose, motion)
+        self._keep(lambda t: id(t) not in lost)
+        if self.n_candidates == 0:
+            self.phase = SEARCHING
+        return earliest
 
     def _confirm(self, scan, motion, stamp) -> None:
         lc = self.config.localization
@@ -136,18 +203,44 @@ class Localizer:
         if self.n_candidates == 0:
             self.phase = SEARCHING
             return
-        if stamp < self.confirm_until:
+        self._decide(scan, stamp)
+
+    def _decide(self, scan, stamp) -> None:
+        """Once the candidates' scans span the window: drop those missing the surfaces with
+        many more points than the best, then look again (``scan``: the newest, searched
+        again unless the candidates came from it); one left is committed."""
+        if self.phase != CONFIRMING or stamp < self.confirm_until:
             return
-        # the fit saturates near 1 in a well-mapped place: the share of points off the
-        # surfaces tells a wrong place (a rival seen from afar) from the right one
-        best = 1.0 - max(t.mean_fit for t in self.trackers[: self.n_candidates])
-        worst = min(lc.confirm_misses * best + lc.confirm_miss_floor,
-                    1.0 - self.config.front_end.min_track_inliers)  # and none fitting poorly
-        self._keep(lambda t: 1.0 - t.mean_fit <= worst)
+        lc = self.config.localization
+        if self.trackers[0].fits:  # (none with no window: confirm_seconds 0)
+            # the fit saturates near 1 in a well-mapped place: the share of points off the
+            # surfaces tells a wrong place (a rival seen from afar) from the right one
+            best = 1.0 - max(t.mean_fit for t in self.trackers[: self.n_candidates])
+            worst = min(lc.confirm_misses * best + lc.confirm_miss_floor,
+                        1.0 - self.config.front_end.min_track_inliers)  # none fitting poorly
+            self._keep(lambda t: 1.0 - t.mean_fit <= worst)
+        if self.config.relocalization.confirm_look and stamp > self.found_at:
+            # a second look, apart from the first: a candidate that tracked well into a
+            # wrong place (a corridor's twin) is seldom where this scan is placed
+            poses = self._look(scan)
+            near = {id(t) for t in self.trackers[: self.n_candidates]
+                    if any(self._same_place(t.pose, p) for p in poses)}
+            if len(poses) == 1 and not near:
+                self._begin(poses, stamp)  # located elsewhere: confirm that place instead
+                return
+            if near:  # (rivals none of which is a candidate tell nothing)
+                self._keep(lambda t: id(t) in near)
         if self.n_candidates == 0:
             self.phase = SEARCHING
         elif self.n_candidates == 1:
             self._commit(0)
+
+    def _same_place(self, a, b) -> bool:
+        """Whether poses ``a`` and ``b`` are one place to the search (not distinct, §8)."""
+        rc = self.config.relocalization
+        d = between(a, b)
+        return d[0] ** 2 + d[1] ** 2 <= rc.distinct_distance ** 2 and \
+            abs(d[2]) <= rc.distinct_angle
 
     def _keep(self, test) -> None:
         """Keep the candidates passing ``test`` (in order) at the front of the trackers."""

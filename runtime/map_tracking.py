@@ -118,6 +118,15 @@ class MapTracker:
         self.anchor = -1
         self.poor, self.fit_sum, self.fits = 0, 0.0, 0
 
+    def rewind(self, pose, motion) -> None:
+        """Back at ``pose``, the scan :meth:`start` began at, after following earlier scans
+        backward: their fits count, the rest starts afresh (``motion``: the last scan-to-scan
+        motion going forward)."""
+        self.pose[:] = pose
+        self.motion[:] = motion
+        self.anchor = -1
+        self.poor = 0
+
     @property
     def mean_fit(self) -> float:
         return self.fit_sum / self.fits if self.fits else 0.0

@@ -16,9 +16,10 @@
 3. polish: the swarm (Alg. 5) aligns the scan with the nearest node scans in a small box around
    the grid's answer, as loop closure does.
 
-Confirmation merges the scans of the next ``confirm_seconds`` — placed by the motion tracked
-between them — into one query (:meth:`Relocalizer.relocalize_merged`), meant to tell apart
-what one scan cannot; measured, it rarely does in corridors (README, ``bench localize``).
+Confirmation (:mod:`runtime.localization`) tracks the candidates over ``confirm_seconds`` of
+scans and searches the newest again. :meth:`Relocalizer.relocalize_merged` merges such scans —
+placed by the motion tracked between them — into one query, meant to tell apart what one scan
+cannot; measured, it rarely does in corridors (README, ``bench localize``).
 """
 
 from __future__ import annotations

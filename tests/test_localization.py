@@ -10,7 +10,7 @@ import tracemalloc
 import gymnasium as gym
 import numpy as np
 import pytest
-from test_relocalization import ANGLES, map_from
+from test_relocalization import ANGLES, close, map_from
 
 import swarmslam_sim  # noqa: F401  (registers SwarmSlam-v0)
 from runtime.config import SlamConfig, override
@@ -18,6 +18,7 @@ from runtime.fixed_rate import SlamRuntime
 from runtime.localization import CONFIRMING, TRACKING, Localizer
 from runtime.map_tracking import SavedMap, nearest_nodes
 from runtime.pose import between, compose
+from runtime.relocalization import Ambiguous, Located
 from runtime.scan import PointScan
 from runtime.session import SessionError
 from runtime.warm_up import LoopDrive, loop_path, room_world, scan_at
@@ -141,6 +142,68 @@ def test_twin_rooms_stay_in_question_instead_of_a_wrong_pose():
     assert localizer.phase == CONFIRMING and localizer.n_candidates >= 2
     x = sorted(localizer.candidates()[:, 0])
     assert x[0] < 6.0 < x[-1]  # one candidate in each room
+
+
+class ScriptedSearch:
+    """Stands in for the global search: answers from ``script`` (scan index → answer), an
+    empty answer otherwise; records which scans were searched."""
+
+    def __init__(self, script):
+        self.script, self.scan, self.searched = script, 0, []
+
+    def relocalize(self, scan):
+        self.searched.append(self.scan)
+        return self.script.get(self.scan, Ambiguous((), (), "scripted: nothing"))
+
+
+def drive_scripted(localizer, world, path, script, scans):
+    """``scans`` scans along ``path`` (0.1 s apart, exact odometry) with the search scripted;
+    returns the scripted search and the scan at which a pose was first committed (or None)."""
+    search = localizer.relocalizer = ScriptedSearch(script)
+    rng, scan, committed = np.random.default_rng(4), PointScan(len(ANGLES)), None
+    for k in range(scans):
+        search.scan = k
+        scan.set_ranges(scan_at(world, path[k], ANGLES, 12.0, 0.01, rng), ANGLES, 0.05, 12.0)
+        result = localizer.step(scan, path[k], 0.1 * k)
+        if committed is None and not np.isnan(result.pose[0]):
+            committed = k
+    return search, committed
+
+
+def test_a_place_found_late_is_confirmed_by_the_scans_before_it():
+    path = loop_path(60)
+    world = room_world(7, size=(12.0, 9.0), boxes=14, walls=1, keep_clear=path)
+    saved = SavedMap(*map_from(world, path), len(path))
+    truth = np.asarray(path[25], np.float64)
+    wrong = compose(truth, np.array([0.0, 0.0, math.pi]))  # the same spot, facing back
+    for replay, answer, expected in ((32, truth, 25), (0, truth, 45), (32, wrong, None)):
+        config = override(SlamConfig(), {"relocalization.confirm_replay_scans": replay})
+        localizer = Localizer(config, saved, seed=3)
+        # the search finds nothing for 25 scans (2.5 s), then answers at scan 25
+        _, committed = drive_scripted(localizer, world, path, {25: Located(answer, 0.9)}, 50)
+        assert committed == expected, (replay, committed)
+        if expected is not None:  # 2 s of scans: the 20 before it, or the 20 after
+            assert close(localizer.pose(), path[49], 0.1), localizer.pose()
+
+
+def test_a_second_look_replaces_a_candidate_tracked_into_a_wrong_place():
+    room = room_world(5, size=(6.0, 5.0), boxes=4, walls=1)
+    world = np.vstack([room, room + [8.0, 0.0, 8.0, 0.0]])  # the same room 8 m to the right
+    path = [(3.0 + 0.6 * math.cos(a), 2.5 + 0.6 * math.sin(a), a + math.pi / 2)
+            for a in np.linspace(0, 2 * math.pi, 40, endpoint=False)]
+    poses, nodes = map_from(world, [(x + dx, y, t) for dx in (0.0, 8.0) for x, y, t in path])
+    saved = SavedMap(poses, nodes, len(poses))
+    twin = np.asarray(path[0]) + [8.0, 0.0, 0.0]  # the right room: it tracks just as well
+    truth_at = 20  # the window's end (2 s): the newest scan is searched again
+    for look, expected in ((True, 0.0), (False, 8.0)):
+        config = override(SlamConfig(), {"relocalization.confirm_look": look})
+        localizer = Localizer(config, saved, seed=1)
+        script = {0: Located(twin, 0.9), truth_at: Located(np.asarray(path[truth_at]), 0.9)}
+        search, committed = drive_scripted(localizer, world, path, script, 30)
+        assert committed == truth_at, committed
+        assert search.searched == ([0, truth_at] if look else [0])
+        e = between(localizer.pose(), np.asarray(path[29]) + [expected, 0.0, 0.0])
+        assert math.hypot(e[0], e[1]) < 0.1, (look, localizer.pose())
 
 
 def test_a_corrupt_or_foreign_session_is_refused(saved_loop, tmp_path):
