@@ -52,7 +52,9 @@ class BackEnd:
         self.loops = LoopCloser(lc)
         self.wide = WideLoopSearch(lc, graph.max_nodes, config.sensor.max_points,
                                    config.matcher.max_gap)
-        self.matcher = ScanMatcher(replace(config.matcher, guess_window=lc.search_window),
+        # a loop's guess is the graph's estimate, never trusted as a prediction
+        self.matcher = ScanMatcher(replace(config.matcher, guess_window=lc.search_window,
+                                           predict_first=0.0),
                                    seed=seed)
         self.reference = self.matcher.new_reference()
         points = config.sensor.max_points
@@ -141,6 +143,9 @@ class BackEnd:
             self.node = int(self.queue[self.head])
             self.head = (self.head + 1) % cap
             self.size -= 1
+            if self._closed_lately(self.node):
+                self._finish()
+                return
             found = self.loop_candidates(self.node)
             n = min(len(found), self.candidates.shape[0])
             self.candidates[:n] = found[:n]
@@ -176,6 +181,20 @@ class BackEnd:
             self._finish()
         else:
             self._next_candidate()
+
+    def _closed_lately(self, node: int) -> bool:
+        """Whether a loop closure was kept at one of the ``closure_spacing`` nodes before
+        ``node``: its search is skipped, the graph having just been anchored there (as
+        Cartographer samples its constraints; docs/method.md §5). Read off the graph's
+        newest edges, which join the newest nodes."""
+        spacing = self.loops.config.closure_spacing
+        g = self.graph
+        k = g.n_edges - 1
+        while spacing > 0 and k >= 0 and max(g.ij[k, 0], g.ij[k, 1]) >= node - spacing:
+            if g.kind[k] == LOOP and g.ij[k, 1] < node:
+                return True
+            k -= 1
+        return False
 
     def _next_candidate(self) -> None:
         self.next_candidate += 1

@@ -172,6 +172,9 @@ class MatcherConfig(Section):
     refine_evaluations: int = _setting(600, "budget of the local stage (0: none)", ge=0)
     refine_window: tuple[float, float, float] = _setting(
         (0.15, 0.15, 0.08), "half-widths (m, m, rad) of the local stage", gt=0)
+    predict_first: float = _setting(
+        0.0, "with a guess, the local stage runs first at it; its match stands if λ is at "
+        "most this many times the running mean λ, skipping the global stage (0: off)", ge=0)
     search_window: tuple[float, float, float] = _setting(
         (2.0, 2.0, 1.6), "half-widths of the box without a guess (m, m, rad)", gt=0)
     guess_window: tuple[float, float, float] = _setting(
@@ -279,6 +282,9 @@ class LoopClosureConfig(Section):
 
     KEY = "loop_closure"
     search_radius: float = _setting(10.0, "m: candidates beyond this are never considered", gt=0)
+    closure_spacing: int = _setting(
+        0, "nodes after one where a loop closure was kept whose loop search is skipped "
+        "(0: every node is searched)", ge=0)
     exclude_recent: int = _setting(10, "nodes just behind the new one are neighbours, not loops",
                                    ge=1)
     max_candidates: int = _setting(8, "gated candidates kept, closest first", ge=1)
@@ -570,13 +576,17 @@ def simulated(lidar: str = "rplidar-a1", beams: int | None = None, min_range: fl
               max_range: float | None = None) -> SlamConfig:
     """The simulator's SLAM: half the swarm budget of the dataset benchmarks (the simulated
     odometry always centres the search: 1,500 + 300 evaluations kept the pose error at 4–7 cm
-    in the office world while halving the SLAM time per step; README, bench env)."""
+    in the office world while halving the SLAM time per step), the local stage tried first at
+    odometry's prediction (``predict_first``), and no loop search for the 2 nodes after a
+    closure (``closure_spacing``): 2.2 times the steps per second, the office explorations'
+    pose error 5.1 cm mean over 8 seeds against 6.7 (README, bench env)."""
     b, lo, hi = SIMULATED_LIDARS.get(lidar, SIMULATED_LIDARS["rplidar-a1"])
     return override(SlamConfig(), {
         "sensor.name": f"sim-{lidar}", "sensor.max_points": beams or b,
         "sensor.min_range": lo if min_range is None else min_range,
         "sensor.max_range": hi if max_range is None else max_range,
         "matcher.swarm.max_evaluations": 1500, "matcher.refine_evaluations": 300,
+        "matcher.predict_first": 1.5, "loop_closure.closure_spacing": 2,
         "capacity.max_nodes": 4000, "capacity.max_edges": 16000, "capacity.max_scans": 20000})
 
 

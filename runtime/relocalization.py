@@ -107,7 +107,8 @@ class Relocalizer:
             self._coarse_found = np.zeros((rc.coarse_candidates, 4), np.int64)
             self._candidates = np.zeros((rc.coarse_candidates, 3), np.int64)
         self.cell_radius = int(math.ceil(rc.distinct_distance / rc.resolution))
-        self.matcher = ScanMatcher(replace(config.matcher, guess_window=rc.refine_window),
+        self.matcher = ScanMatcher(replace(config.matcher, guess_window=rc.refine_window,
+                                           predict_first=0.0),
                                    seed=seed)
         self.reference = self.matcher.new_reference()
         self._submap = PointScan(config.sensor.max_points * rc.refine_nodes)

@@ -51,8 +51,9 @@ from runtime.threshold import RejectionThreshold
     S_REFINE_Y,
     S_REFINE_T,
     S_COARSE,
-) = range(15)
-N_SETTINGS = 15
+    S_PREDICT,
+) = range(16)
+N_SETTINGS = 16
 # Layout of the ``out`` array it fills.
 R_X, R_Y, R_T, R_LAMBDA, R_USED_MAP, R_ITERATIONS, R_EVALUATIONS, R_LAMBDA_SCAN = range(8)
 N_OUT = 8
@@ -143,6 +144,21 @@ def align_kernel(
     out[R_LAMBDA] = np.inf
     kernel = int(settings[S_KERNEL])
     budget = settings[S_MAX_EVALS]
+    # 0. A prediction trusted (``S_PREDICT``: the λ a match must reach, else 0): the local stage
+    # first, at the box's centre — the guess; a match that fits as well as matches here
+    # usually do stands, and the global stage is skipped (docs/method.md §3).
+    accept = settings[S_PREDICT]
+    if accept > 0.0 and settings[S_REFINE_EVALS] > 0:
+        for d in range(3):
+            w = settings[S_REFINE_X + d]
+            ws.lo[d] = 0.5 * (box[0, d] + box[1, d]) - w
+            ws.hi[d] = 0.5 * (box[0, d] + box[1, d]) + w
+        _minimise(kind, ws, settings, 0, kernel, pts, n, 1, field, grid, meta,
+                  settings[S_REFINE_EVALS])
+        _take(ws, out, ws.scal[BEST_VAL])
+        if out[R_LAMBDA] <= accept:
+            out[R_LAMBDA_SCAN] = out[R_LAMBDA]
+            return
     # 1. Scan-to-scan over the whole box (Eq. 14), on a stride of the points and, if set up,
     # on the coarse wide field whose broad basin the swarm finds more reliably ...
     stride = int(settings[S_STRIDE])
@@ -298,6 +314,9 @@ class ScanMatcher:
         if not reference.ready:
             raise ValueError("reference maps were never built (call build_reference first)")
         self.set_search_box(guess, window)
+        c, t = self.config, self.threshold
+        self.settings[S_PREDICT] = (c.predict_first * t.mean if c.predict_first > 0
+                                    and guess is not None and t.count > 1 else 0.0)
         align_kernel(
             self.optimizer.kind,
             self.optimizer.ws,

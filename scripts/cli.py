@@ -178,6 +178,38 @@ def _replay(args) -> int:
     return 0
 
 
+def _sweep(args) -> int:
+    from scripts.sweep import format_summary, read_spec, summarise, sweep, write_summary
+
+    spec = read_spec(args.spec, args.data)
+    if args.results:
+        spec.results = Path(args.results).resolve()
+    records = sweep(spec, args.address, args.workers, args.serial)
+    print(format_summary(summarise(records)))
+    print(f"results in {spec.results}; summary in {write_summary(spec, records)}")
+    return 0
+
+
+def _tune(args) -> int:
+    from scripts.tune import read_tune_spec, tune_config
+
+    spec = read_tune_spec(args.spec, args.data)
+    if args.out:
+        spec.out = Path(args.out).resolve()
+    if args.trials:
+        spec.trials = args.trials
+    tune_config(spec, args.address, args.workers)
+    return 0
+
+
+def _bench_sweep(args) -> int:
+    from scripts.bench.sweep import bench_sweep
+    from scripts.sweep import read_spec
+
+    bench_sweep(read_spec(args.spec, args.data), args.workers, args.json)
+    return 0
+
+
 def _config_fields(args) -> int:
     from scripts.config_doc import fields_markdown
 
@@ -393,6 +425,28 @@ def build_parser() -> argparse.ArgumentParser:
     sl.add_argument("--seconds", type=float, help="only the route's first seconds")
     sl.set_defaults(func=_simlog)
 
+    sw = sub.add_parser("sweep", help="replays over logs × optimizers × seeds × configuration "
+                                      "variants as Ray tasks, resumable (docs/sweeps.md)")
+    sw.add_argument("spec", help="the sweep's TOML spec")
+    sw.add_argument("--address", help="an existing Ray cluster (default: a local Ray started "
+                                      "for the sweep)")
+    sw.add_argument("--workers", type=_at_least_one,
+                    help="CPUs of the local Ray (default: all)")
+    sw.add_argument("--serial", action="store_true", help="one run after another in this "
+                                                          "process, no Ray")
+    sw.add_argument("--results", help="the results file (JSON lines; default: the spec's)")
+    sw.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
+    sw.set_defaults(func=_sweep)
+    tu = sub.add_parser("tune", help="Ray Tune + Optuna over configuration fields; objective: "
+                                     "the worst ratio to the reference error over the logs")
+    tu.add_argument("spec", help="the tuning's TOML spec (docs/sweeps.md)")
+    tu.add_argument("--address", help="an existing Ray cluster (default: a local Ray)")
+    tu.add_argument("--workers", type=_at_least_one, help="trials at a time (default: all CPUs)")
+    tu.add_argument("--trials", type=_at_least_one, help="the budget (default: the spec's)")
+    tu.add_argument("--out", help="the best configuration's TOML (default: the spec's)")
+    tu.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
+    tu.set_defaults(func=_tune)
+
     bench = sub.add_parser("bench", help="benchmarks (JSON + table)")
     bsub = bench.add_subparsers(dest="benchmark", required=True)
     m = bsub.add_parser("matcher", help="scan matching on keyframe logs, no initial guess")
@@ -462,6 +516,13 @@ def build_parser() -> argparse.ArgumentParser:
     _bench_outputs(rt)
     _config_options(rt, DEFAULT_PRESET)
     rt.set_defaults(func=_bench_runtime)
+    bs = bsub.add_parser("sweep", help="a sweep spec run serially and on a local Ray: wall "
+                                       "times and the runs' figures compared")
+    bs.add_argument("spec", help="the sweep's TOML spec (its results file is not touched)")
+    bs.add_argument("--workers", type=_at_least_one, default=2, help="CPUs of the local Ray")
+    bs.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
+    _bench_outputs(bs)
+    bs.set_defaults(func=_bench_sweep)
     return p
 
 

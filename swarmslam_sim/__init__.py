@@ -5,9 +5,15 @@ so both ``gymnasium.make("swarmslam_sim:SwarmSlam-v0")`` and, after ``import swa
 ``gymnasium.make("SwarmSlam-v0")`` work.
 """
 
+from pathlib import Path
+
 from gymnasium.envs.registration import register, registry
 
-from swarmslam_sim.env import SwarmSlamEnv
+from runtime.kernel_cache import refresh
+
+refresh(Path(__file__).parent)  # before any kernel of this package is loaded
+
+from swarmslam_sim.env import SwarmSlamEnv  # noqa: E402
 
 ENV_ID = "SwarmSlam-v0"
 MAX_EPISODE_STEPS = 500

@@ -13,7 +13,7 @@ from gymnasium import spaces
 from runtime.config import OPTIMIZERS, SlamConfig, override, simulated
 from runtime.fixed_rate import SlamRuntime
 from runtime.localization import TRACKING
-from runtime.pose import between_nb, compose_nb, wrap_angle
+from runtime.pose import between_nb, compose_nb, wrap_angle, wrap_angle_nb
 from runtime.scan import PointScan, ranges_to_points
 from swarmslam_sim.catalog import get_world
 from swarmslam_sim.lidar import Lidar, lidar_config
@@ -207,10 +207,11 @@ class SwarmSlamEnv(gym.Env):
         if self.robot is None:
             raise RuntimeError("call reset() before step()")
         action = np.asarray(action, dtype=np.float64).reshape(2)
-        if not np.all(np.isfinite(action)):  # NaN would make the true pose NaN from here on
+        linear, turn = float(action[0]), float(action[1])  # (scalars: cheaper per step)
+        if not (math.isfinite(linear) and math.isfinite(turn)):  # NaN: the pose NaN for good
             raise ValueError(f"action must be finite, got {action.tolist()}")
-        action = np.clip(action, -1.0, 1.0)
-        self.robot.command(action[0] * self.max_linear, action[1] * self.max_angular)
+        linear, turn = min(max(linear, -1.0), 1.0), min(max(turn, -1.0), 1.0)
+        self.robot.command(linear * self.max_linear, turn * self.max_angular)
         self.robot.clear_touched()
         for _ in range(self.substeps):
             self.space.step(self.dt / self.substeps)
@@ -219,7 +220,7 @@ class SwarmSlamEnv(gym.Env):
         self.in_contact = touched
         self.collisions += int(collided)
         previous, self.true_pose = self.true_pose, self.robot.pose
-        self.true_pose[2] = wrap_angle(self.true_pose[2])
+        self.true_pose[2] = wrap_angle_nb(self.true_pose[2])  # (the scalar kernel: per step)
         motion = self._odometry_motion(between_nb(*self.true_pose, *previous))
         self.odometry = np.array(compose_nb(*self.odometry, *motion))
         self.steps += 1
@@ -329,7 +330,7 @@ class SwarmSlamEnv(gym.Env):
     def _observation(self):
         lo, hi = self.observation_space["pose"].low, self.observation_space["pose"].high
         pose = self.estimated_pose.astype(np.float32)
-        pose[2] = wrap_angle(self.estimated_pose[2])
+        pose[2] = wrap_angle_nb(self.estimated_pose[2])
         crop_probability(self.map.logodds, self.map.origin[0], self.map.origin[1],
                          self.map.resolution, self.estimated_pose[0], self.estimated_pose[1], self._crop)
         return {
@@ -345,7 +346,7 @@ class SwarmSlamEnv(gym.Env):
             "true_pose": self.true_pose.copy(),
             "estimated_pose": self.estimated_pose.copy(),
             "pose_error": math.hypot(error[0], error[1]),
-            "heading_error": abs(wrap_angle(error[2])),
+            "heading_error": abs(wrap_angle_nb(error[2])),
             "coverage": self.coverage,
             "collisions": self.collisions,
             "in_contact": self.in_contact,

@@ -12,6 +12,7 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numba import njit
 
 from swarmslam_sim.raycast import build_grid, cast_scan
 from swarmslam_sim.world import World
@@ -101,5 +102,15 @@ class Lidar:
         if c.dropout > 0:
             rng.random(out=self._drop)
             r[self._drop < c.dropout] = np.inf
-        r[(r < c.min_range) | ~(r < c.max_range)] = c.max_range
+        no_return(r, c.min_range, c.max_range)
         return r
+
+
+@njit(cache=True)
+def no_return(ranges, min_range, max_range):
+    """Every range below ``min_range``, at or beyond ``max_range`` (or NaN) set to
+    ``max_range``: what the scanner reports for a beam without a return."""
+    for k in range(ranges.shape[0]):
+        r = ranges[k]
+        if r < min_range or not r < max_range:
+            ranges[k] = max_range

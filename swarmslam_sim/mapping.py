@@ -83,10 +83,10 @@ def crop_probability(logodds, origin_x, origin_y, res, x, y, out):
         gy = cy + i
         for j in range(size_x):
             gx = cx + j
-            if 0 <= gy < h and 0 <= gx < w:
+            if 0 <= gy < h and 0 <= gx < w and logodds[gy, gx] != 0.0:
                 out[i, j] = 1.0 - 1.0 / (1.0 + math.exp(logodds[gy, gx]))
             else:
-                out[i, j] = 0.5
+                out[i, j] = 0.5  # (what the formula gives at log-odds 0: unknown)
 
 
 def map_error(world: World, poses, nodes, n_nodes: int, max_range: float = np.inf) -> float:

@@ -101,3 +101,26 @@ def test_bad_input_raises_clear_errors():
         m.align_scans(PointScan.from_points([[1.0, 0.0]]), ref, guess=[0, np.nan, 0])
     with pytest.raises(ValueError, match="matcher.kernel: must be one of paper, cauchy"):
         MatcherConfig(kernel="huber")
+
+
+def test_a_good_prediction_is_matched_by_the_local_stage_alone():
+    """predict_first: with the guess near the truth the local stage's match stands (a fifth
+    of the evaluations); a guess it cannot mend still gets the global stage."""
+    motion = np.array([0.4, -0.2, 0.15])
+    ref, cur = scans_for(motion, noise=0.01)
+    results = {}
+    for first in (0.0, 1.5):
+        m = ScanMatcher(MatcherConfig.for_optimizer("abc", predict_first=first), seed=1)
+        reference = m.build_reference(ref)
+        for _ in range(3):  # a running mean λ to judge by
+            m.align_scans(cur, reference, motion + [0.02, -0.02, 0.01])
+        near = m.align_scans(cur, reference, motion + [0.03, 0.02, -0.01])
+        far = m.align_scans(cur, reference, motion + [0.25, -0.25, 0.2])
+        results[first] = near, far
+        for r in (near, far):
+            e = between(r.pose, motion)
+            assert np.hypot(e[0], e[1]) < 0.03 and abs(e[2]) < 0.015, (first, r)
+    (near_full, _), (near_first, far_first) = results[0.0], results[1.5]
+    assert 3 * near_first.evaluations < near_full.evaluations
+    # the local stage alone did not fit: the global stage ran too
+    assert far_first.evaluations > near_full.evaluations

@@ -227,3 +227,19 @@ def test_loop_reference_is_a_submap_around_the_candidate():
     recent = node - slam.config.loop_closure.exclude_recent
     slam.back_end.align_loop(recent, node)
     assert slam.back_end._submap.count == slam.nodes.counts[recent - k : recent + 1].sum()
+
+
+def test_closure_spacing_skips_the_search_just_after_a_closure():
+    spaced = override(SlamConfig(), {"loop_closure.closure_spacing": 2})
+    closed_at = {}
+    for name, config in (("every node", SlamConfig()), ("spaced", spaced)):
+        slam, truth, _ = run(steps=160, laps=1.25, config=config)
+        g = slam.graph
+        loops = np.sort(g.ij[: g.n_edges][g.kind[: g.n_edges] == LOOP, 1])
+        closed_at[name] = loops
+        stamps, poses = slam.trajectory()
+        err = np.hypot(*(poses[:, :2] - truth[:, :2]).T)
+        assert err.mean() < 0.05, (name, err.mean())
+    assert np.min(np.diff(closed_at["every node"])) <= 2  # closures on close nodes, unspaced
+    assert np.min(np.diff(closed_at["spaced"])) > 2
+    assert 0 < len(closed_at["spaced"]) < len(closed_at["every node"])

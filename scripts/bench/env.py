@@ -16,7 +16,7 @@ import gymnasium as gym
 from runtime.writers import write_json_atomic
 from scripts.plots import bars, require_matplotlib
 
-TARGETS = {"steps_per_s_without_slam": 5000, "steps_per_s_with_slam": 200}
+TARGETS = {"steps_per_s_without_slam": 8000, "steps_per_s_with_slam": 400}
 
 
 def _actions(space, count, seed):
