@@ -202,6 +202,18 @@ def _tune(args) -> int:
     return 0
 
 
+def _rllib(args) -> int:
+    from scripts.train_rllib import train_ppo
+
+    env_config = {"slam": args.slam, "world": args.world,
+                  "max_episode_steps": args.episode_steps}
+    result = train_ppo(args.iterations, args.env_runners, env_config, args.seed,
+                       Path(args.checkpoint) if args.checkpoint else None, args.address)
+    if result["checkpoint"]:
+        print(f"checkpoint in {result['checkpoint']}")
+    return 0
+
+
 def _bench_sweep(args) -> int:
     from scripts.bench.sweep import bench_sweep
     from scripts.sweep import read_spec
@@ -446,6 +458,18 @@ def build_parser() -> argparse.ArgumentParser:
     tu.add_argument("--out", help="the best configuration's TOML (default: the spec's)")
     tu.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
     tu.set_defaults(func=_tune)
+    rl = sub.add_parser("rllib", help="PPO on SwarmSlam-v0 with RLlib, env runners on Ray "
+                                      "(extra 'rllib')")
+    rl.add_argument("--iterations", type=_at_least_one, default=10)
+    rl.add_argument("--env-runners", type=_at_least_one, default=2)
+    rl.add_argument("--world", default="office")
+    rl.add_argument("--slam", action="store_true", help="the SLAM's pose in the observation "
+                                                        "(default: the true pose, faster)")
+    rl.add_argument("--episode-steps", type=_at_least_one, default=500)
+    rl.add_argument("--seed", type=int, default=0)
+    rl.add_argument("--checkpoint", metavar="DIR", help="save the trained algorithm here")
+    rl.add_argument("--address", help="an existing Ray cluster (default: a local Ray)")
+    rl.set_defaults(func=_rllib)
 
     bench = sub.add_parser("bench", help="benchmarks (JSON + table)")
     bsub = bench.add_subparsers(dest="benchmark", required=True)
