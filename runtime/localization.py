@@ -223,8 +223,10 @@ class Localizer:
             # a second look, apart from the first: a candidate that tracked well into a
             # wrong place (a corridor's twin) is seldom where this scan is placed
             poses = self._look(scan)
+            rc = self.config.relocalization  # one place to the search: not distinct (§8)
             near = {id(t) for t in self.trackers[: self.n_candidates]
-                    if any(self._same_place(t.pose, p) for p in poses)}
+                    if any(within(t.pose, p, rc.distinct_distance, rc.distinct_angle)
+                           for p in poses)}
             if len(poses) == 1 and not near:
                 self._begin(poses, stamp)  # located elsewhere: confirm that place instead
                 return
@@ -234,13 +236,6 @@ class Localizer:
             self.phase = SEARCHING
         elif self.n_candidates == 1:
             self._commit(0)
-
-    def _same_place(self, a, b) -> bool:
-        """Whether poses ``a`` and ``b`` are one place to the search (not distinct, §8)."""
-        rc = self.config.relocalization
-        d = between(a, b)
-        return d[0] ** 2 + d[1] ** 2 <= rc.distinct_distance ** 2 and \
-            abs(d[2]) <= rc.distinct_angle
 
     def _keep(self, test) -> None:
         """Keep the candidates passing ``test`` (in order) at the front of the trackers."""
@@ -259,9 +254,7 @@ class Localizer:
         trackers, dropped = self.trackers[: self.n_candidates], set()
         for i, a in enumerate(trackers):
             for b in trackers[i + 1 :]:
-                d = between(a.pose, b.pose)
-                if d[0] ** 2 + d[1] ** 2 <= lc.merge_distance ** 2 and \
-                        abs(d[2]) <= lc.merge_angle:
+                if within(a.pose, b.pose, lc.merge_distance, lc.merge_angle):
                     dropped.add(id(b) if a.mean_fit >= b.mean_fit else id(a))
         return dropped
 
@@ -340,3 +333,10 @@ class Localizer:
                 **self.counts, "mean_fit": self.fit_sum / tracked if tracked else 0.0,
                 "scans_without_pose": int(self.n_scans - self.has_pose().sum()),
                 "status": self.status}
+
+
+def within(a, b, distance: float, angle: float) -> bool:
+    """Whether poses ``a`` and ``b`` lie within ``distance`` (m) and ``angle`` (rad) of each
+    other."""
+    d = between(a, b)
+    return d[0] ** 2 + d[1] ** 2 <= distance ** 2 and abs(d[2]) <= angle

@@ -84,7 +84,10 @@ def read_tune_spec(path, data=None) -> TuneSpec:
     for key, dist in search.items():
         spec.search[key] = _distribution(key, dist, where)
     given = _get(table, "reference", dict, where, {})
-    for log in spec.runs.logs:
+    for log, (path, relations) in spec.runs.logs.items():
+        if relations is None:
+            raise SpecError(f"{where}: log {log!r} has no relations beside it ({path}): a "
+                            "tuned log must be scored")
         if log in CARTOGRAPHER:
             spec.reference[log] = CARTOGRAPHER[log]
         elif isinstance(given.get(log), (int, float)) and given[log] > 0:
@@ -129,8 +132,6 @@ def objective(spec: TuneSpec, changes: dict) -> dict:
     base = override(spec.runs.base_config(), changes)
     ratios = {}
     for log, (path, relations) in spec.runs.logs.items():
-        if relations is None:
-            raise SpecError(f"{path}: a tuned log needs relations to be scored")
         records = [run_replay(Run(log, spec.optimizer, seed), path, relations,
                               spec.runs.odometry, spec.runs.limit, base)
                    for seed in spec.runs.seeds]

@@ -74,3 +74,12 @@ def test_a_log_without_a_reference_is_refused(spec_path, tmp_path):
     bad.write_text(f'logs = ["{spec_path.parent / "hall2.clf"}"]\n' + SEARCH)
     with pytest.raises(SpecError, match="has no published figure"):
         read_tune_spec(bad)
+
+
+def test_a_log_without_relations_is_refused_before_any_trial(spec_path, tmp_path):
+    bare = tmp_path / "bare.clf"
+    bare.write_bytes((spec_path.parent / "hall2.clf").read_bytes())  # no bare.relations
+    bad = tmp_path / "bad.toml"
+    bad.write_text(f'logs = ["{bare}"]\n[reference]\n"{bare}" = 0.05\n' + SEARCH)
+    with pytest.raises(SpecError, match="has no relations beside it"):
+        read_tune_spec(bad)
