@@ -23,7 +23,7 @@ from runtime.config import SlamConfig
 from runtime.degeneracy import Degeneracy
 from runtime.loop_closure import propagate_covariance
 from runtime.node_scans import NodeScans
-from runtime.pose import between, compose
+from runtime.pose import between, compose, place_points_nb
 from runtime.pose_graph import ODOMETRY, PoseGraph, information_from_sigma
 from runtime.scan import PointScan
 from runtime.scan_matcher import ScanMatcher
@@ -63,6 +63,12 @@ class FrontEnd:
         self.reference = self.matcher.new_reference()
         self._node_scan = PointScan(points)
         self._submap = PointScan(points * submap_nodes)
+        # The submap's nodes and the poses that placed them when it was built (the keyframe's
+        # last): a loop closure moves the graph's poses, not the reference tracked against, and
+        # a restored session rebuilds the reference the running one had.
+        self._submap_nodes = np.zeros(submap_nodes, np.int64)
+        self._submap_poses = np.zeros((submap_nodes, 3))
+        self._n_submap = 0
         # The trajectory: the node each scan was matched to, and its pose in that node's frame.
         n = config.capacity.max_scans
         self.scan_node = np.zeros(n, np.int64)
@@ -160,11 +166,12 @@ class FrontEnd:
         self._record(stamp)
         return True
 
-    def rebuild_reference(self) -> None:
-        """The keyframe's reference maps from the stored node scans (a restored session
+    def rebuild_reference(self, placed: bool = False) -> None:
+        """The keyframe's reference maps from the stored node scans, placed by the graph's
+        poses — or, ``placed``, by the poses kept when it was last built (a restored session
         rebuilds exactly what the running one had)."""
         self.nodes.load(self.keyframe, self._node_scan)
-        self.matcher.build_reference(self._submap_of(self.keyframe), self.reference)
+        self.matcher.build_reference(self._submap_of(self.keyframe, placed), self.reference)
 
     def information(self) -> np.ndarray:
         """An edge's information matrix: fixed, or Eq. 20's I/σλ² (docs/method.md §4.2)."""
@@ -192,14 +199,26 @@ class FrontEnd:
             self.have_odometry = True
         self._record(stamp)
 
-    def _submap_of(self, node):
+    def _submap_of(self, node, placed: bool = False):
         """The newest node's scan, preceded by up to submap_nodes − 1 earlier node scans moved
-        into its frame (oldest first, so surfaces join within each scan)."""
+        into its frame (oldest first, so surfaces join within each scan) by the graph's poses,
+        or (``placed``) by those kept from the last build."""
         k = self.config.front_end.submap_nodes
         if k <= 1 or node == 0:
             return self._node_scan
-        return self.nodes.place(self.graph.poses, range(max(node - k + 1, 0), node + 1), node,
-                                self._submap)
+        if not placed:
+            first = max(node - k + 1, 0)
+            self._n_submap = node + 1 - first
+            self._submap_nodes[: self._n_submap] = np.arange(first, node + 1)
+            self._submap_poses[: self._n_submap] = self.graph.poses[first : node + 1]
+        m, points, counts, out = self._n_submap, self.nodes.points, self.nodes.counts, self._submap
+        n = 0
+        for i in range(m):  # the same arithmetic as NodeScans.place, on the kept poses
+            other = self._submap_nodes[i]
+            n = place_points_nb(self._submap_poses, i, m - 1, points[other], counts[other],
+                                out.buffer, n)
+        out.count = n
+        return out
 
     def _inliers(self, scan, pose) -> float:
         c = self.config.front_end
@@ -266,7 +285,9 @@ class FrontEnd:
                 "motion": self.motion.copy(), "last_odometry": self.last_odometry.copy(),
                 "keyframe": self.keyframe, "have_odometry": self.have_odometry,
                 "weak": self.weak, "lost_matches": self.lost_matches,
-                "degenerate_matches": self.degenerate_matches, "status": self.status}
+                "degenerate_matches": self.degenerate_matches, "status": self.status,
+                "submap_nodes": self._submap_nodes[: self._n_submap].copy(),
+                "submap_poses": self._submap_poses[: self._n_submap].copy()}
 
     def restore(self, state: dict) -> None:
         """The state :meth:`state` gave, over a front end of the same configuration built on
@@ -288,7 +309,19 @@ class FrontEnd:
         self.lost_matches, self.status = int(state["lost_matches"]), str(state["status"])
         self.degenerate_matches = int(state["degenerate_matches"])
         self.keyframe = int(state["keyframe"])
+        if self.keyframe >= 0 and not 0 <= self.keyframe < n:
+            raise ValueError(f"keyframe {self.keyframe} is not a stored node")
+        members = state.get("submap_nodes", np.zeros(0, np.int64))
+        poses = state.get("submap_poses", np.zeros((0, 3)))
+        if (len(members) > self._submap_nodes.shape[0] or poses.shape != (len(members), 3)
+                or np.any(members < 0) or np.any(members >= max(n, 1))
+                or (len(members) and members[-1] != self.keyframe)
+                or not np.all(np.isfinite(poses))):
+            raise ValueError("the keyframe's submap is not one this front end builds "
+                             "(another submap_nodes?)")
+        self._n_submap = len(members)
+        self._submap_nodes[: self._n_submap] = members
+        self._submap_poses[: self._n_submap] = poses
         if self.keyframe >= 0:
-            if not 0 <= self.keyframe < n:
-                raise ValueError(f"keyframe {self.keyframe} is not a stored node")
-            self.rebuild_reference()
+            # a session saved before the submap was kept (or of one scan) places it by the graph
+            self.rebuild_reference(placed=self._n_submap > 0)

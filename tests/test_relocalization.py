@@ -258,7 +258,8 @@ def test_bench_localize_maps_a_log_and_scores_its_queries(tmp_path):
     write_simlog(log, "hall", seed=2, lidar="rplidar-a1", rate_hz=4.0, seconds=60)
     session = mapping_session("hall", log, tmp_path / "maps", echo=lambda *_: None)
     assert session.exists()
-    row = bench_log("hall", log, session, queries=6, seed=0, echo=lambda *_: None)
+    # 12 queries: with 6, one scan more or less found in the open hall swings the rate by 17%
+    row = bench_log("hall", log, session, queries=12, seed=0, echo=lambda *_: None)
     rates = ("success_rate", "wrong_rate", "ambiguous_rate")
     assert abs(sum(row[k] for k in rates) - 1.0) < 1e-9
     assert row["wrong_rate"] == 0.0 and row["success_rate"] > 0.5, row

@@ -233,6 +233,18 @@ def test_corrupt_session_files_are_refused_naming_the_file(saved, tmp_path, dama
         SlamRuntime.resume(bad)
 
 
+def test_a_session_whose_tracking_submap_is_not_its_own_is_refused(saved, tmp_path):
+    runtime, _ = saved
+    state = runtime.state()
+    front = state["slam"]["front_end"]
+    assert len(front["submap_nodes"]) == 3  # the default tracks against three node scans
+    front["submap_nodes"] = front["submap_nodes"] - 1  # not ending at the keyframe
+    bad = tmp_path / "foreign.session"
+    write_session(bad, state)
+    with pytest.raises(SessionError, match="submap"):
+        SlamRuntime.resume(bad)
+
+
 def test_each_save_keeps_the_previous_good_session(saved, tmp_path):
     runtime, _ = saved
     path = tmp_path / "s.session"

@@ -165,11 +165,15 @@ def test_rgb_array_and_human_rendering():
     human.close()
 
 
-def test_stable_baselines3_ppo_trains():
+def test_stable_baselines3_ppo_trains(tmp_path):
     sb3 = pytest.importorskip("stable_baselines3", reason="the optional 'rl' extra is not installed")
+    from stable_baselines3.common.logger import configure
+
     env = gym.make("SwarmSlam-v0", slam=False, max_episode_steps=200)
     model = sb3.PPO("MultiInputPolicy", env, n_steps=512, batch_size=128, n_epochs=2, seed=0,
                     device="cpu", verbose=0)
+    # SB3's default logger makes a folder in the system's temp dir on every learn()
+    model.set_logger(configure(str(tmp_path), []))
     model.learn(total_timesteps=2048)
     action, _ = model.predict(env.reset(seed=0)[0], deterministic=True)
     assert env.action_space.contains(action)
