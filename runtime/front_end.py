@@ -209,7 +209,8 @@ class FrontEnd:
         if not placed:
             first = max(node - k + 1, 0)
             self._n_submap = node + 1 - first
-            self._submap_nodes[: self._n_submap] = np.arange(first, node + 1)
+            for i in range(self._n_submap):  # (no temporary array: this runs at every node)
+                self._submap_nodes[i] = first + i
             self._submap_poses[: self._n_submap] = self.graph.poses[first : node + 1]
         m, points, counts, out = self._n_submap, self.nodes.points, self.nodes.counts, self._submap
         n = 0
