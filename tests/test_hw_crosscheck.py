@@ -99,8 +99,14 @@ def _slamtec_scans(tmp_path, model, typical):
         driver.stop_scan()
         driver.disconnect()
     finally:
-        emulator.send_signal(signal.SIGINT)  # it writes the record on stopping
-        emulator.wait(timeout=20)
+        # it writes the record on stopping. SIGTERM, not SIGINT: a test run started in the
+        # background by a script inherits SIGINT ignored, and the emulator would never stop
+        emulator.send_signal(signal.SIGTERM)
+        try:
+            emulator.wait(timeout=20)
+        finally:
+            if emulator.poll() is None:  # never left running behind a failed test
+                emulator.kill()
     assert len(scans) == 3
     return scans, bytearray(record.read_bytes())
 
