@@ -248,6 +248,22 @@ def test_place_map_scores_the_true_pose_near_one(room):
     assert place.score(q.points, q.count, path[7] + [1.0, 0.0, 0.5]) < 0.5
 
 
+def test_bench_localize_maps_again_when_the_defaults_changed(tmp_path):
+    from scripts.bench.localize import MADE_BY, mapping_session
+    from scripts.simlog import write_simlog
+
+    log = tmp_path / "hall.clf"
+    write_simlog(log, "hall", seed=2, lidar="rplidar-a1", rate_hz=4.0, seconds=15)
+    said = []
+    session = mapping_session("hall", log, tmp_path / "maps", echo=said.append)
+    made = session.stat().st_mtime_ns
+    assert mapping_session("hall", log, tmp_path / "maps", echo=said.append) == session
+    assert session.stat().st_mtime_ns == made and len(said) == 1  # kept: the same defaults
+    (session.parent / MADE_BY).write_text("[front_end]\nsubmap_nodes = 1\n")  # other defaults
+    mapping_session("hall", log, tmp_path / "maps", echo=said.append)
+    assert "other defaults" in said[-1] and session.stat().st_mtime_ns != made
+
+
 def test_bench_localize_maps_a_log_and_scores_its_queries(tmp_path):
     """The benchmark's pipeline on a short simulated survey: the mapping replay leaves a
     session, the queries are judged against its trajectory, every figure is reported."""

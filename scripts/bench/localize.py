@@ -1,12 +1,13 @@
 """``swarmslam bench localize``: global relocalization on the Intel, ACES3 and fr-clinic logs.
 
 Per log: the map of the whole log (a mapping replay, ABC with odometry, seed 0; its session is
-kept in ``maps_dir`` and reused), then single scans drawn at seeded random times are
-relocalized with no prior. An answer is a success within 0.3 m and 5° of the mapping run's
-optimised pose of that scan, wrong otherwise; "ambiguous" is neither. Then the same queries
-confirmed: localization mode started there with no prior, its candidates tracked over the
-next ``confirm_seconds`` of scans, judged at the last of them. Then localization-mode tracking
-over the log's second half on the budgeted schedule (:func:`tracking`).
+kept in ``maps_dir`` and reused while the defaults it was made with are today's), then single
+scans drawn at seeded random times are relocalized with no prior. An answer is a success within
+0.3 m and 5° of the mapping run's optimised pose of that scan, wrong otherwise; "ambiguous" is
+neither. Then the same queries confirmed: localization mode started there with no prior, its
+candidates tracked over the next ``confirm_seconds`` of scans, judged at the last of them. Then
+localization-mode tracking over the log's second half on the budgeted schedule
+(:func:`tracking`).
 """
 
 from __future__ import annotations
@@ -18,12 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
+from runtime.config import SlamConfig, to_toml
 from runtime.fixed_rate import SlamRuntime
 from runtime.localization import TRACKING
 from runtime.pose import between
 from runtime.relocalization import Ambiguous, Located
 from runtime.scan import PointScan
-from runtime.writers import write_json_atomic
+from runtime.writers import write_json_atomic, write_text_atomic
 from scripts.bench.slam import LOGS
 from scripts.carmen import read_carmen
 from scripts.datasets import require
@@ -44,13 +46,24 @@ def judge(answer, truth) -> str:
     return "success" if close else "wrong"
 
 
+MADE_BY = "made-by.toml"  # beside a kept session: the defaults its mapping run had
+
+
 def mapping_session(name: str, log_path: Path, maps_dir: Path, echo=print) -> Path:
-    """The session of the whole log's mapping run, made once per ``maps_dir``."""
+    """The session of the whole log's mapping run, made once per ``maps_dir`` and made again
+    when the defaults have changed since (a kept map of other defaults would be scored as
+    today's without a word)."""
     out = Path(maps_dir) / name
-    session = out / "session.npz"
-    if not session.exists():
+    session, made_by = out / "session.npz", out / MADE_BY
+    defaults = to_toml(SlamConfig(), comments=False)
+    if session.exists() and made_by.exists() and made_by.read_text() == defaults:
+        return session
+    if session.exists():
+        echo(f"{name}: the map kept in {out} was made with other defaults: mapping again")
+    else:
         echo(f"{name}: mapping the whole log first (kept in {out})")
-        replay(log_path, out_dir=out, label=f"{name} mapping")
+    replay(log_path, out_dir=out, label=f"{name} mapping")
+    write_text_atomic(made_by, defaults)
     return session
 
 
