@@ -23,7 +23,7 @@ from runtime.config import SlamConfig
 from runtime.degeneracy import Degeneracy
 from runtime.loop_closure import propagate_covariance
 from runtime.node_scans import NodeScans
-from runtime.pose import between, compose, place_points_nb
+from runtime.pose import between, compose
 from runtime.pose_graph import ODOMETRY, PoseGraph, information_from_sigma
 from runtime.scan import PointScan
 from runtime.scan_matcher import ScanMatcher
@@ -212,14 +212,9 @@ class FrontEnd:
             for i in range(self._n_submap):  # (no temporary array: this runs at every node)
                 self._submap_nodes[i] = first + i
             self._submap_poses[: self._n_submap] = self.graph.poses[first : node + 1]
-        m, points, counts, out = self._n_submap, self.nodes.points, self.nodes.counts, self._submap
-        n = 0
-        for i in range(m):  # the same arithmetic as NodeScans.place, on the kept poses
-            other = self._submap_nodes[i]
-            n = place_points_nb(self._submap_poses, i, m - 1, points[other], counts[other],
-                                out.buffer, n)
-        out.count = n
-        return out
+        m = self._n_submap  # the kept poses are rows 0..m-1, the keyframe's the last
+        return self.nodes.place(self._submap_poses, self._submap_nodes[:m], m - 1,
+                                self._submap, rows=range(m))
 
     def _inliers(self, scan, pose) -> float:
         c = self.config.front_end
@@ -315,7 +310,7 @@ class FrontEnd:
         members = state.get("submap_nodes", np.zeros(0, np.int64))
         poses = state.get("submap_poses", np.zeros((0, 3)))
         if (len(members) > self._submap_nodes.shape[0] or poses.shape != (len(members), 3)
-                or np.any(members < 0) or np.any(members >= max(n, 1))
+                or np.any(members < 0) or np.any(members >= n)
                 or (len(members) and members[-1] != self.keyframe)
                 or not np.all(np.isfinite(poses))):
             raise ValueError("the keyframe's submap is not one this front end builds "

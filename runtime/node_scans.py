@@ -39,12 +39,14 @@ class NodeScans:
         """Node ``node``'s points (a view, robot frame)."""
         return self.points[node, : self.counts[node]]
 
-    def place(self, poses, nodes, frame: int, out: PointScan) -> PointScan:
-        """The stored scans of ``nodes``, one after another, in node ``frame``'s frame as
-        ``poses`` place them (each scan's points stay together, so surfaces join within it)."""
+    def place(self, poses, nodes, frame: int, out: PointScan, rows=None) -> PointScan:
+        """The stored scans of ``nodes``, one after another, in the frame of ``poses[frame]``
+        as ``poses`` place them (each scan's points stay together, so surfaces join within
+        it). ``rows``: the row of ``poses`` placing each node (default: the node's own)."""
         n = 0
-        for other in nodes:
-            n = place_points_nb(poses, other, frame, self.points[other], self.counts[other],
+        for k, other in enumerate(nodes):
+            row = other if rows is None else rows[k]
+            n = place_points_nb(poses, row, frame, self.points[other], self.counts[other],
                                 out.buffer, n)
         out.count = n
         return out
