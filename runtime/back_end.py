@@ -272,12 +272,17 @@ class BackEnd:
             return None
         self.z_info[:] = self.information()
         ratio = self.config.front_end.degeneracy_ratio
-        if ratio > 0:  # along a corridor the graph's estimate stands in, the edge weak there
+        if ratio > 0:  # along a corridor the guess stands in, the edge weak there
             fc = self.config.front_end
             h = self.matcher.curvature(scan, reference, pose, fc.curvature_step)
             degeneracy = Degeneracy(h, ratio, fc.degenerate_information)
             pose = degeneracy.remap(pose, guess)
-            self.z_info[:] = degeneracy.information(self.z_info)
+            # An ordinary search's guess is the graph's own estimate: along the axis the edge
+            # repeats it rather than measuring it, and may pin the drift it holds (Intel's
+            # first corridor, 0.87 m); 'floor' frees it, at a cost (docs/method.md §5, step 3).
+            floor = c.degenerate_share == "floor" and not proposal
+            share = fc.degenerate_information if floor else None
+            self.z_info[:] = degeneracy.information(self.z_info, share)
         if proposal:
             return pose  # the wide search's own tests stand (runtime/wide_loop_search.py)
         return self._submap_agrees(scan, reference, pose, candidate, members, n_members)

@@ -34,6 +34,7 @@ else:  # pragma: no cover - Python 3.10
 OPTIMIZERS = ("pso", "abc", "fa")
 KERNEL_NAMES = ("paper", "cauchy")  # Eq. 14 as printed; the per-point robust kernel
 INFORMATION_MODES = ("fixed", "paper")
+DEGENERATE_SHARES = ("curvature", "floor")
 SCHEDULES = ("budgeted", "lockstep")
 SOLVERS = ("ldl", "superlu")
 
@@ -318,6 +319,11 @@ class LoopClosureConfig(Section):
     max_search_window: tuple[float, float, float] = _setting(
         (2.0, 2.0, 0.5), "largest half-widths: between the two, the box spans 3σ of the "
         "propagated relative pose", gt=0)
+    degenerate_share: str = _setting(
+        "curvature", "information a loop edge keeps along a degenerate direction, where the "
+        "graph's estimate stood in: the share the curvature supports, or the floor "
+        "(front_end.degenerate_information; a wide search's proposal keeps the curvature's)",
+        choices=DEGENERATE_SHARES)
     # The wide search after a long drift (runtime/wide_loop_search.py; docs/method.md §5).
     wide_after: int = _setting(
         10, "nodes since the last kept closure after which a node whose ordinary search found "

@@ -1,5 +1,6 @@
 """Degenerate matches: the direction a scan match does not pin (a plain corridor's axis), the
-prediction standing in along it, and an edge information weak along it (docs/method.md §6.1).
+prediction standing in along it, and an edge information weak along it (docs/method.md §6.1,
+§5 step 3).
 
 The curvature (Hessian) of the summed per-point cost at the match is reduced to translation
 with the heading at its best (the Schur complement ``H_tt − H_tθ H_θθ⁻¹ H_θt``): walls pin
@@ -40,11 +41,13 @@ class Degeneracy:
         out[:2] -= slide * self.axis
         return out
 
-    def information(self, base) -> np.ndarray:
-        """``base`` with its information along the degenerate axis cut to ``share``."""
+    def information(self, base, share: float | None = None) -> np.ndarray:
+        """``base`` with its information along the degenerate axis cut to ``share`` (default:
+        the share the curvature supports)."""
         if not self.degenerate:
             return base
+        share = self.share if share is None else share
         a = np.zeros(3)
         a[:2] = self.axis
-        scale = np.eye(3) - (1.0 - math.sqrt(self.share)) * np.outer(a, a)
+        scale = np.eye(3) - (1.0 - math.sqrt(share)) * np.outer(a, a)
         return scale @ base @ scale
