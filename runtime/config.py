@@ -376,7 +376,7 @@ class RelocalizationConfig(Section):
                                   ge=3)
     coarse_min_score: float = _setting(0.6, "mean hit value (0-1) a first-pass candidate needs",
                                        gt=0, le=1)
-    coarse_ratio: float = _setting(0.8, "first-pass candidates score at least this share of "
+    coarse_ratio: float = _setting(0.85, "first-pass candidates score at least this share of "
                                    "its best", gt=0, le=1)
     coarse_candidates: int = _setting(64, "first-pass candidates refined at most (the best "
                                       "distinct ones)", ge=1)
@@ -442,13 +442,17 @@ class LocalizationConfig(Section):
         ge=0)
     merge_angle: float = _setting(0.05, "rad: and turned at most this from each other", ge=0)
     confirm_misses: float = _setting(
-        2.0, "after confirm_seconds, a candidate whose share of scan points off the saved "
+        1.5, "after confirm_seconds, a candidate whose share of scan points off the saved "
         "surfaces exceeds this many times the best one's (plus confirm_miss_floor) is dropped",
         ge=1)
     confirm_miss_floor: float = _setting(
         0.003, "share of points off the surfaces any candidate may have beyond the best one's "
         "multiple (a nearly perfect best one then does not drop the other for a point or two)",
         ge=0)
+    confirm_max_miss: float = _setting(
+        0.3, "after confirm_seconds, a candidate with more than this share of its scan points "
+        "off the saved surfaces is dropped whatever the others' (a wrong place seen from afar "
+        "tracks, but misses many)", ge=0, le=1)
 
 
 @dataclass(frozen=True)

@@ -216,7 +216,7 @@ class Localizer:
             # the fit saturates near 1 in a well-mapped place: the share of points off the
             # surfaces tells a wrong place (a rival seen from afar) from the right one
             best = 1.0 - max(t.mean_fit for t in self.trackers[: self.n_candidates])
-            worst = min(lc.confirm_misses * best + lc.confirm_miss_floor,
+            worst = min(lc.confirm_misses * best + lc.confirm_miss_floor, lc.confirm_max_miss,
                         1.0 - self.config.front_end.min_track_inliers)  # none fitting poorly
             self._keep(lambda t: 1.0 - t.mean_fit <= worst)
         if self.config.relocalization.confirm_look and stamp > self.found_at:

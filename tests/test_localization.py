@@ -206,6 +206,25 @@ def test_a_second_look_replaces_a_candidate_tracked_into_a_wrong_place():
         assert math.hypot(e[0], e[1]) < 0.1, (look, localizer.pose())
 
 
+def test_a_place_whose_scans_miss_much_of_the_map_is_not_committed():
+    # The map explains about 60% of what the scans see: the rest hits a crowd it does not
+    # have. The candidate tracks (over min_track_inliers), but past confirm_max_miss it is
+    # no answer to commit — fr-clinic's wrong place 290 m away missed 44%.
+    path = loop_path(60)
+    mapped = room_world(7, size=(12.0, 9.0), boxes=0, walls=1)
+    crowd = room_world(11, size=(12.0, 9.0), boxes=40, walls=0, keep_clear=path,
+                       clearance=0.5)[4:]  # its boxes only
+    world = np.vstack([mapped, crowd])
+    saved = SavedMap(*map_from(mapped, path), len(path))
+    script = {0: Located(np.asarray(path[0], np.float64), 0.9)}
+    for ceiling, expected in ((0.3, None), (1.0, 20)):  # 1.0: only min_track_inliers's cap
+        config = override(SlamConfig(), {"localization.confirm_max_miss": ceiling})
+        localizer = Localizer(config, saved, seed=3)
+        _, committed = drive_scripted(localizer, world, path, script, 30)
+        assert committed == expected, (ceiling, committed)
+        assert 0.3 < 1.0 - localizer.trackers[0].mean_fit < 0.5  # tracked, missing many
+
+
 def test_a_corrupt_or_foreign_session_is_refused(saved_loop, tmp_path):
     path, _, _ = saved_loop
     bad = tmp_path / "bad.npz"
