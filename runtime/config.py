@@ -402,8 +402,9 @@ class RelocalizationConfig(Section):
     ambiguity_ratio: float = _setting(
         0.9, "a distinct pose scoring at least this share of the best makes the answer "
         "'ambiguous'", gt=0, le=1)
-    distinct_distance: float = _setting(1.0, "m: poses farther apart than this are distinct",
-                                        gt=0)
+    distinct_distance: float = _setting(
+        0.7, "m: poses farther apart than this are distinct (a map's walls drawn twice this far "
+        "apart are two places, not one: docs/method.md §8)", gt=0)
     distinct_angle: float = _setting(0.35, "rad: or turned more than this", gt=0)
     max_hypotheses: int = _setting(4, "distinct poses an ambiguous answer lists", ge=2)
     refine_window: tuple[float, float, float] = _setting(
@@ -715,22 +716,54 @@ def to_toml(config, comments: bool = True) -> str:
     return "\n".join(lines) + "\n"
 
 
-def from_toml(text: str, base: SlamConfig | None = None, source: str = "<toml>") -> SlamConfig:
+def _parse_toml(text: str, source: str) -> dict:
     try:
-        data = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{source}: not valid TOML: {exc}") from None
+
+
+def _read_toml(path: Path) -> dict:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read the configuration: {exc}") from None
+    return _parse_toml(text, str(path))
+
+
+def _from_data(data: dict, base: SlamConfig | None, source: str) -> SlamConfig:
     try:
         return from_dict(data, base if base is not None else SlamConfig())
     except ConfigError as exc:
         raise ConfigError(f"{source}: {exc}") from None
 
 
+def from_toml(text: str, base: SlamConfig | None = None, source: str = "<toml>") -> SlamConfig:
+    return _from_data(_parse_toml(text, source), base, source)
+
+
 def load_config(path, base: SlamConfig | None = None) -> SlamConfig:
     """``base`` (default: the defaults) with the fields a TOML file names changed."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: cannot read the configuration: {exc}") from None
-    return from_toml(text, base, str(path))
+    return _from_data(_read_toml(path), base, str(path))
+
+
+# A saved session keeps the configuration its map was made with. These sections steer only
+# the search and the tracking in that map, never the map, so a newer setting may be used on
+# an older map (docs/method.md §9).
+SESSION_SECTIONS = ("localization", "relocalization")
+
+
+def session_changes(path) -> dict:
+    """The changes (dotted keys, for :func:`override`) a TOML file makes to a saved session's
+    configuration. Only :data:`SESSION_SECTIONS` may change; any other table is refused."""
+    path = Path(path)
+    data = _read_toml(path)
+    for table in data:
+        if table not in SESSION_SECTIONS:
+            raise ConfigError(
+                f"{path}: [{table}]: a saved session keeps the configuration its map was made "
+                f"with; only [{'], ['.join(SESSION_SECTIONS)}] may change")
+    _from_data(data, None, str(path))  # every key and value checked here, naming the file
+    return {f"{table}.{key}": value for table, section in data.items()
+            for key, value in section.items()}

@@ -32,6 +32,7 @@ from runtime.map_tracking import MapTracker, SavedMap
 from runtime.node_scans import NodeScans
 from runtime.pose import between, inverse
 from runtime.relocalization import Located, Relocalizer
+from runtime.rng import seed_state
 from runtime.scan import PointScan
 from runtime.scan_matcher import ScanMatcher
 from runtime.step_result import StepResult
@@ -44,7 +45,7 @@ class Localizer:
     tracking starts at once); None: the first scans are searched for."""
 
     def __init__(self, config: SlamConfig, saved: SavedMap, seed: int = 0, initial_pose=None):
-        self.config, self.saved = config, saved
+        self.config, self.saved, self.seed = config, saved, seed
         self.relocalizer = Relocalizer(config, saved.poses, saved.nodes, saved.n_nodes, seed)
         self.matcher = ScanMatcher(config.matcher, seed=seed + 1)
         self.trackers = [MapTracker(saved, self.matcher, config)
@@ -73,11 +74,16 @@ class Localizer:
         if initial_pose is not None:
             self._commit_pose(np.asarray(initial_pose, np.float64))
 
-    def reset(self, initial_pose=None) -> None:
+    def reset(self, initial_pose=None, seed: int | None = None) -> None:
         """Forget the pose (and odometry): the next scan is searched for, or tracked from
-        ``initial_pose``. The trajectory recorded so far stays."""
+        ``initial_pose``. The trajectory recorded so far stays. ``seed``: the swarms' random
+        streams restart as a localizer made with that seed starts them (a benchmark's
+        queries then do not depend on the ones before)."""
         self.phase, self.n_candidates, self.n_recent = SEARCHING, 0, 0
         self.have_odometry = False
+        if seed is not None:
+            seed_state(seed, self.relocalizer.matcher.optimizer.ws.rng)
+            seed_state(seed + 1, self.matcher.optimizer.ws.rng)
         if initial_pose is not None:
             self._commit_pose(np.asarray(initial_pose, np.float64))
 

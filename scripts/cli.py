@@ -18,6 +18,7 @@ from runtime.config import (
     SlamConfig,
     load_config,
     preset,
+    session_changes,
     to_toml,
 )
 from runtime.inbox import skipped_text
@@ -133,6 +134,19 @@ def _config(args, default_preset: str) -> SlamConfig | None:
     return load_config(args.config, base) if args.config else base
 
 
+def _session_changes(args) -> dict | None:
+    """With ``--localize``/``--resume``: the changes ``--config FILE`` makes to the session's
+    own configuration (only its search and tracking: :data:`runtime.config.SESSION_SECTIONS`).
+    None without a session."""
+    if not (args.localize or args.resume):
+        return None
+    if args.preset:
+        raise ValueError("--localize and --resume take the configuration saved in the session; "
+                         "drop --preset (--config may change its [localization] and "
+                         "[relocalization])")
+    return session_changes(args.config) if args.config else {}
+
+
 def _config_show(args) -> int:
     config = preset(args.preset or DEFAULT_PRESET)
     if args.config:
@@ -144,15 +158,12 @@ def _config_show(args) -> int:
 def _replay(args) -> int:
     from scripts.replay import replay
 
-    from_session = args.localize or args.resume
-    if from_session and (args.config or args.preset):
-        raise ValueError("--localize and --resume take the configuration saved in the "
-                         "session; drop --config/--preset")
+    changes = _session_changes(args)
     m = replay(args.log, args.relations, args.optimizer, not args.no_odometry, args.out,
                args.limit, args.seed,
-               config=None if from_session else _config(args, DEFAULT_PRESET),
+               config=None if changes is not None else _config(args, DEFAULT_PRESET),
                localize=args.localize, resume=args.resume, start=args.start,
-               watch=RunWatch.from_args(args))
+               watch=RunWatch.from_args(args), session_changes=changes)
     if args.localize:
         r = m["runtime"]
         print(f"{m['scans']} scans localized in {args.localize}: {m['scans_with_pose']} with a "
@@ -260,9 +271,12 @@ def _lidar(args) -> int:
     from scripts.live import run_live
 
     with _sigterm_as_ctrl_c():
+        changes = _session_changes(args)
         run_live(args.port, args.model, args.mode, args.out, args.rate, args.seconds,
-                 args.resume, config=_config(args, f"rplidar-{args.model}"),
-                 localize=args.localize, watch=RunWatch.from_args(args), baud=args.baud)
+                 args.resume,
+                 config=None if changes is not None else _config(args, f"rplidar-{args.model}"),
+                 localize=args.localize, watch=RunWatch.from_args(args), baud=args.baud,
+                 session_changes=changes)
     return 0
 
 
@@ -313,10 +327,12 @@ def _demo(args) -> int:
     return 0
 
 
-def _config_options(parser, default: str) -> None:
+def _config_options(parser, default: str, sessions: bool = False) -> None:
+    also = (" (with --localize/--resume: only the session's [localization] and "
+            "[relocalization])" if sessions else "")
     parser.add_argument("--config", metavar="FILE",
                         help="TOML file changing fields of the configuration "
-                             "(see: swarmslam config show)")
+                             f"(see: swarmslam config show){also}")
     parser.add_argument("--preset", choices=list(PRESETS), help=f"configuration preset "
                         f"(default: {default})")
 
@@ -370,7 +386,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="extend a saved session's map from wherever the scanner is in it")
     saved.add_argument("--localize", metavar="SESSION",
                        help="localize in a saved session's map (never changed), no prior")
-    _config_options(li, "the model's preset")
+    _config_options(li, "the model's preset", sessions=True)
     _view_options(li)
     li.set_defaults(func=_lidar)
     em = sub.add_parser("emulate", help="a virtual RPLidar on a pseudo-terminal")
@@ -418,7 +434,7 @@ def build_parser() -> argparse.ArgumentParser:
     saved.add_argument("--resume", metavar="SESSION",
                        help="extend a saved session's map from wherever the log starts in it "
                             "(multi-session mapping)")
-    _config_options(rp, DEFAULT_PRESET)
+    _config_options(rp, DEFAULT_PRESET, sessions=True)
     _view_options(rp)
     rp.set_defaults(func=_replay)
 

@@ -36,16 +36,23 @@ def run_live(port: str, model: str = "a1", mode: str = "typical", out_dir="swarm
              rate_hz: float | None = None, seconds: float | None = None, resume=None,
              echo=print, stop: threading.Event | None = None,
              config: SlamConfig | None = None, localize=None, watch=None,
-             baud: int | None = None) -> dict:
+             baud: int | None = None, session_changes: dict | None = None) -> dict:
     """``config``: the whole configuration (default: the model's preset); ``rate_hz``
     overrides its tick rate. ``resume``: a session extended from wherever the scanner is in
-    its map (found first); ``localize``: a session to localize in, never changed.
+    its map (found first); ``localize``: a session to localize in, never changed. Both take
+    the session's configuration, with ``session_changes``
+    (:func:`runtime.config.session_changes`: search and tracking only).
     ``watch``: a :class:`scripts.run_view.RunWatch` shown after every tick that took a scan.
     ``baud``: a rate to switch the link to after connecting (where the model allows)."""
     out = Path(out_dir)
     check_writable(out)
     clean_stale(out)
-    changes = {"runtime.rate_hz": rate_hz} if rate_hz is not None else None
+    if (localize or resume) and config is not None:
+        raise ValueError("a localized or resumed run takes its configuration from the session "
+                         "(session_changes may change its search and tracking)")
+    changes = dict(session_changes or {})
+    if rate_hz is not None:
+        changes["runtime.rate_hz"] = rate_hz
     sensor = slam_config_for(model).sensor  # the scanner on the port now
     if localize:
         runtime = SlamRuntime.localize(localize, changes=changes, sensor=sensor)

@@ -70,31 +70,33 @@ def log_seconds(lasers) -> float:
 def replay(log_path, relations_path=None, optimizer: str | None = None, odometry=True,
            out_dir=None, limit=None, seed=0, config: SlamConfig | None = None, label="replay",
            echo=print, schedule: str = "lockstep", localize=None, resume=None,
-           start: int = 0, watch=None) -> dict:
+           start: int = 0, watch=None, session_changes: dict | None = None) -> dict:
     """Every scan of the log through :class:`SlamRuntime`, one tick each, as fast as it goes.
     The default schedule is lockstep (the whole back end every tick, as ``GraphSlam.step``);
     ``budgeted`` slices it as on a robot. ``optimizer`` overrides ``config``'s.
 
     ``localize``: a session file to localize in (its map is not changed; the outputs are the
     trajectory and ``localization.json``). ``resume``: a session to extend from wherever the
-    log starts in it (multi-session mapping). Both take their configuration from the session.
+    log starts in it (multi-session mapping). Both take their configuration from the session,
+    with ``session_changes`` (:func:`runtime.config.session_changes`: search and tracking only).
     ``start``: the first scan replayed. ``watch``: a :class:`scripts.run_view.RunWatch` shown
     every tick (closed at the end)."""
     return replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, seed,
                       config, label, schedule, localize=localize, resume=resume,
-                      start=start, watch=watch)[0]
+                      start=start, watch=watch, session_changes=session_changes)[0]
 
 
 def replay_runtime(scans: int, optimizer=None, seed=0, config: SlamConfig | None = None,
-                   schedule: str = "lockstep", localize=None, resume=None) -> SlamRuntime:
+                   schedule: str = "lockstep", localize=None, resume=None,
+                   session_changes: dict | None = None) -> SlamRuntime:
     """The runtime a replay of ``scans`` scans runs: new, localizing in a session, or
     extending one from an unknown place."""
     if localize is None and resume is None:
         return SlamRuntime(replay_config(config, optimizer, scans, schedule), seed=seed)
     if config is not None:
         raise ValueError("a localized or resumed replay takes its configuration from the "
-                         "session; drop --config/--preset")
-    changes = {"runtime.schedule": schedule}
+                         "session (session_changes may change its search and tracking)")
+    changes = {**(session_changes or {}), "runtime.schedule": schedule}
     if optimizer is not None:
         changes["matcher.swarm.optimizer"] = optimizer
     if localize is not None:
@@ -106,19 +108,20 @@ def replay_runtime(scans: int, optimizer=None, seed=0, config: SlamConfig | None
 def replay_run(log_path, relations_path=None, optimizer: str | None = None, odometry=True,
                out_dir=None, limit=None, seed=0, config: SlamConfig | None = None,
                label="replay", schedule: str = "lockstep", before_scan=None, localize=None,
-               resume=None, start: int = 0, watch=None):
+               resume=None, start: int = 0, watch=None, session_changes=None):
     """:func:`replay`, returning ``(metrics, runtime)``; ``before_scan(k, runtime)`` is called
     before scan ``k`` is processed (benchmarks use it to follow the run)."""
     try:
         return _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, seed,
-                           config, label, schedule, before_scan, localize, resume, start, watch)
+                           config, label, schedule, before_scan, localize, resume, start, watch,
+                           session_changes)
     finally:
         if watch is not None:
             watch.close()
 
 
 def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, seed, config,
-                label, schedule, before_scan, localize, resume, start, watch):
+                label, schedule, before_scan, localize, resume, start, watch, session_changes):
     if out_dir is not None:
         check_writable(out_dir)  # before the run, not after it
     log = read_carmen(log_path)
@@ -132,7 +135,8 @@ def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, s
             raise ValueError(f"{relations_path}: none of its {len(relations)} relations has "
                              f"both ends at scans of {log_path} (within 0.1 ms) — the "
                              f"relations of another log?")
-    runtime = replay_runtime(len(lasers), optimizer, seed, config, schedule, localize, resume)
+    runtime = replay_runtime(len(lasers), optimizer, seed, config, schedule, localize, resume,
+                             session_changes)
     config = runtime.config
     slam = runtime.slam
     scan = PointScan(max(len(r.ranges) for r in lasers))

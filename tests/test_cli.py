@@ -136,6 +136,21 @@ def test_simlog_then_replay_scores_against_the_simulators_truth(tmp_path, capsys
     assert main(["replay", str(log), "--localize", str(session), "--preset",
                  "sick-lms200"]) == 2
     assert "--rate must be > 0" in capsys.readouterr().err
+    # --config may change a saved session's search (no pose scores 1: nothing is found), not
+    # how its map is made
+    mine = tmp_path / "search.toml"
+    found = []
+    for score in (0.7, 1.0):
+        mine.write_text(f"[relocalization]\nmin_score = {score}\n")
+        assert main(["replay", str(log), "--start", "300", "--limit", "80", "--localize",
+                     str(session), "--config", str(mine), "--out", str(tmp_path / "s")]) == 0
+        found.append(json.loads((tmp_path / "s" / "localization.json").read_text())[
+            "scans_with_pose"])
+    assert found[0] > 0 and found[1] == 0
+    mine.write_text("[front_end]\nnode_distance = 0.4\n")
+    assert main(["replay", str(log), "--resume", str(session), "--config", str(mine)]) == 2
+    assert "search.toml: [front_end]: a saved session keeps" in capsys.readouterr().err
+    assert session.read_bytes() == saved
 
 
 def test_bench_generalization_reports_every_figure_and_the_floor(tmp_path, capsys):

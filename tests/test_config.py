@@ -18,6 +18,7 @@ from runtime.config import (
     override,
     preset,
     rplidar_points,
+    session_changes,
     to_dict,
     to_toml,
 )
@@ -90,6 +91,31 @@ def test_built_configs_are_validated_too():
         override(SlamConfig(), {"front_end.node_distance": 0.0})
     with pytest.raises(ConfigError, match="map.resolution: must be finite"):
         override(SlamConfig(), {"map.resolution": math.nan})
+
+
+def test_a_saved_sessions_search_and_tracking_may_change_its_map_settings_not(tmp_path):
+    path = tmp_path / "mine.toml"
+    path.write_text("[relocalization]\ndistinct_distance = 1\nrefine_window = [0.2, 0.2, 0.05]\n"
+                    "[localization]\nconfirm_misses = 3\n")
+    changes = session_changes(path)
+    changed = override(SlamConfig(), changes)
+    assert changed.relocalization.distinct_distance == 1.0
+    assert changed.relocalization.refine_window == (0.2, 0.2, 0.05)
+    assert changed.localization.confirm_misses == 3.0
+    assert dataclasses.replace(changed, relocalization=SlamConfig().relocalization,
+                               localization=SlamConfig().localization) == SlamConfig()
+    for text, message in [
+        ("[front_end]\nnode_distance = 0.4\n", r"mine.toml: \[front_end\]: a saved session "
+         r"keeps the configuration its map was made with; only \[localization\], "
+         r"\[relocalization\] may change"),
+        ("seed = 3\n", r"mine.toml: \[seed\]"),
+        ("[relocalization]\ndistinct_distanse = 1\n",
+         r"mine.toml: relocalization.distinct_distanse: unknown key"),
+        ("[localization]\nconfirm_misses = -1\n", r"mine.toml: localization.confirm_misses"),
+    ]:
+        path.write_text(text)
+        with pytest.raises(ConfigError, match=message):
+            session_changes(path)
 
 
 def test_one_list_of_optimizers_and_kernels():

@@ -237,6 +237,26 @@ def test_a_corrupt_or_foreign_session_is_refused(saved_loop, tmp_path):
         SlamRuntime.localize(foreign)
 
 
+def test_a_reset_with_the_seed_runs_as_a_fresh_localizer(saved_loop):
+    """``bench localize``'s queries: each runs as on a fresh start, whatever ran before."""
+    path, drive, _ = saved_loop
+    records = [drive.next() for _ in range(40)]
+    scans = [PointScan.from_ranges(r, drive.angles, 0.05, drive.max_range) for _, _, r in records]
+
+    def poses(localizer, records, scans, stamp0):
+        return np.array([localizer.step(s, odometry, stamp0 + 0.1 * k).pose.copy()
+                         for k, (s, (_, odometry, _)) in enumerate(zip(scans, records))])
+
+    fresh = poses(SlamRuntime.localize(path, changes=LOCKSTEP).slam, records, scans, 100.0)
+    assert np.isfinite(fresh[-1]).all()  # found and tracked
+    used = SlamRuntime.localize(path, changes=LOCKSTEP).slam
+    poses(used, records[::-1][:15], scans[::-1][:15], 0.0)  # elsewhere first: streams used
+    used.reset()
+    assert not np.array_equal(poses(used, records, scans, 100.0), fresh, equal_nan=True)
+    used.reset(seed=used.seed)
+    assert np.array_equal(poses(used, records, scans, 100.0), fresh, equal_nan=True)
+
+
 def test_tracking_allocates_nothing_per_scan_after_warm_up(saved_loop):
     path, drive, _ = saved_loop
     # one lap of scans, driven again and again with exact odometry (no new arrays per tick)

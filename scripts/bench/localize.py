@@ -1,7 +1,8 @@
 """``swarmslam bench localize``: global relocalization on the Intel, ACES3 and fr-clinic logs.
 
 Per log: the map of the whole log (a mapping replay, ABC with odometry, seed 0; its session is
-kept in ``maps_dir`` and reused while the defaults it was made with are today's), then single
+kept in ``maps_dir`` and reused while the defaults it was mapped with are today's; the search
+and tracking always run with today's :data:`runtime.config.SESSION_SECTIONS`), then single
 scans drawn at seeded random times are relocalized with no prior. An answer is a success within
 0.3 m and 5° of the mapping run's optimised pose of that scan, wrong otherwise; "ambiguous" is
 neither. Then the same queries confirmed: localization mode started there with no prior, its
@@ -15,11 +16,12 @@ from __future__ import annotations
 import hashlib
 import math
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from runtime.config import SlamConfig, to_toml
+from runtime.config import SESSION_SECTIONS, ConfigError, SlamConfig, from_toml, to_dict, to_toml
 from runtime.fixed_rate import SlamRuntime
 from runtime.localization import TRACKING
 from runtime.pose import between
@@ -49,27 +51,45 @@ def judge(answer, truth) -> str:
 MADE_BY = "made-by.toml"  # beside a kept session: the defaults its mapping run had
 
 
+def todays_search() -> dict:
+    """Today's defaults of the sections a saved session may change (search and tracking): a
+    kept map is scored with them, not with those saved in it."""
+    defaults = SlamConfig()
+    return {f"{table}.{key}": value for table in SESSION_SECTIONS
+            for key, value in to_dict(getattr(defaults, table)).items()}
+
+
+def _mapped_as_today(made_by: Path) -> bool:
+    """Whether the defaults written in ``made_by`` map as today's do (the sections of the
+    search and tracking aside: :func:`todays_search` replaces them)."""
+    try:
+        kept = from_toml(made_by.read_text(encoding="utf-8"), source=str(made_by))
+    except (OSError, ConfigError):
+        return False
+    today = SlamConfig()
+    return replace(kept, **{t: getattr(today, t) for t in SESSION_SECTIONS}) == today
+
+
 def mapping_session(name: str, log_path: Path, maps_dir: Path, echo=print) -> Path:
     """The session of the whole log's mapping run, made once per ``maps_dir`` and made again
-    when the defaults have changed since (a kept map of other defaults would be scored as
-    today's without a word)."""
+    when the mapping defaults have changed since (a kept map of other defaults would be
+    scored as today's without a word)."""
     out = Path(maps_dir) / name
     session, made_by = out / "session.npz", out / MADE_BY
-    defaults = to_toml(SlamConfig(), comments=False)
-    if session.exists() and made_by.exists() and made_by.read_text() == defaults:
+    if session.exists() and made_by.exists() and _mapped_as_today(made_by):
         return session
     if session.exists():
         echo(f"{name}: the map kept in {out} was made with other defaults: mapping again")
     else:
         echo(f"{name}: mapping the whole log first (kept in {out})")
     replay(log_path, out_dir=out, label=f"{name} mapping")
-    write_text_atomic(made_by, defaults)
+    write_text_atomic(made_by, to_toml(SlamConfig(), comments=False))
     return session
 
 
 def bench_log(name: str, log_path: Path, session: Path, queries: int, seed: int,
               echo=print) -> dict:
-    runtime = SlamRuntime.localize(session)
+    runtime = SlamRuntime.localize(session, changes=todays_search())
     localizer = runtime.slam
     relocalizer = localizer.relocalizer
     _, truth = SlamRuntime.resume(session).trajectory()
@@ -85,6 +105,7 @@ def bench_log(name: str, log_path: Path, session: Path, queries: int, seed: int,
     for k in picks:
         k = int(k)
         robot_frame_scan(lasers[k], scan)
+        localizer.reset(seed=localizer.seed)  # each query as on a fresh start
         t = time.perf_counter()
         answer = relocalizer.relocalize(scan)
         seconds.append(time.perf_counter() - t)
@@ -123,8 +144,9 @@ def bench_log(name: str, log_path: Path, session: Path, queries: int, seed: int,
 def confirm_from(localizer, lasers, first: int, last: int, scan: PointScan):
     """Localization mode started with no prior at scan ``first``: the search, then its
     candidates tracked over the scans to ``last`` (docs/method.md §9). Judged at ``last``: a
-    committed pose is the answer; candidates still in question are "ambiguous"."""
-    localizer.reset()
+    committed pose is the answer; candidates still in question are "ambiguous". The swarms'
+    streams restart from the localizer's seed, as on a fresh start."""
+    localizer.reset(seed=localizer.seed)
     for m in range(first, last + 1):
         localizer.step(robot_frame_scan(lasers[m], scan), lasers[m].odometry, lasers[m].timestamp)
     if localizer.phase != TRACKING:
@@ -140,7 +162,7 @@ def tracking(name: str, lasers, session: Path, truth, echo=print) -> dict:
     before = sha256_file(session)
     half = len(lasers) // 2
     runtime = SlamRuntime.localize(session, initial_pose=truth[half],
-                                   changes={"runtime.schedule": "budgeted"})
+                                   changes={**todays_search(), "runtime.schedule": "budgeted"})
     digest = runtime.slam.saved.digest()
     runtime.warm_up()
     scan = PointScan(max(len(r.ranges) for r in lasers))
