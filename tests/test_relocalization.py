@@ -248,7 +248,7 @@ def test_place_map_scores_the_true_pose_near_one(room):
     assert place.score(q.points, q.count, path[7] + [1.0, 0.0, 0.5]) < 0.5
 
 
-def test_bench_localize_maps_again_when_the_defaults_changed(tmp_path):
+def test_bench_localize_maps_again_when_the_mapping_defaults_changed(tmp_path):
     from scripts.bench.localize import MADE_BY, mapping_session
     from scripts.simlog import write_simlog
 
@@ -259,6 +259,11 @@ def test_bench_localize_maps_again_when_the_defaults_changed(tmp_path):
     made = session.stat().st_mtime_ns
     assert mapping_session("hall", log, tmp_path / "maps", echo=said.append) == session
     assert session.stat().st_mtime_ns == made and len(said) == 1  # kept: the same defaults
+    # other search defaults change no map: kept (the queries run with today's)
+    (session.parent / MADE_BY).write_text("[relocalization]\ndistinct_distance = 1.0\n"
+                                          "[localization]\nconfirm_misses = 2.0\n")
+    assert mapping_session("hall", log, tmp_path / "maps", echo=said.append) == session
+    assert session.stat().st_mtime_ns == made and len(said) == 1
     (session.parent / MADE_BY).write_text("[front_end]\nsubmap_nodes = 1\n")  # other defaults
     mapping_session("hall", log, tmp_path / "maps", echo=said.append)
     assert "other defaults" in said[-1] and session.stat().st_mtime_ns != made
