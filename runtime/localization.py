@@ -236,7 +236,9 @@ class Localizer:
             if len(poses) == 1 and not near:
                 self._begin(poses, stamp)  # located elsewhere: confirm that place instead
                 return
-            if near:  # (rivals none of which is a candidate tell nothing)
+            # rivals none of which is a candidate tell nothing; nor does a full list, which
+            # may leave out rivals as good as those it holds (a corridor's many twins)
+            if near and len(poses) < rc.max_hypotheses:
                 self._keep(lambda t: id(t) in near)
         if self.n_candidates == 0:
             self.phase = SEARCHING

@@ -186,13 +186,19 @@ def test_a_place_found_late_is_confirmed_by_the_scans_before_it():
             assert close(localizer.pose(), path[49], 0.1), localizer.pose()
 
 
-def test_a_second_look_replaces_a_candidate_tracked_into_a_wrong_place():
+def twin_rooms_circle():
+    """The same room twice, 8 m apart, both mapped, and a circle driven in the left one:
+    ``(world, path, saved map)``."""
     room = room_world(5, size=(6.0, 5.0), boxes=4, walls=1)
     world = np.vstack([room, room + [8.0, 0.0, 8.0, 0.0]])  # the same room 8 m to the right
     path = [(3.0 + 0.6 * math.cos(a), 2.5 + 0.6 * math.sin(a), a + math.pi / 2)
             for a in np.linspace(0, 2 * math.pi, 40, endpoint=False)]
     poses, nodes = map_from(world, [(x + dx, y, t) for dx in (0.0, 8.0) for x, y, t in path])
-    saved = SavedMap(poses, nodes, len(poses))
+    return world, path, SavedMap(poses, nodes, len(poses))
+
+
+def test_a_second_look_replaces_a_candidate_tracked_into_a_wrong_place():
+    world, path, saved = twin_rooms_circle()
     twin = np.asarray(path[0]) + [8.0, 0.0, 0.0]  # the right room: it tracks just as well
     truth_at = 20  # the window's end (2 s): the newest scan is searched again
     for look, expected in ((True, 0.0), (False, 8.0)):
@@ -204,6 +210,26 @@ def test_a_second_look_replaces_a_candidate_tracked_into_a_wrong_place():
         assert search.searched == ([0, truth_at] if look else [0])
         e = between(localizer.pose(), np.asarray(path[29]) + [expected, 0.0, 0.0])
         assert math.hypot(e[0], e[1]) < 0.1, (look, localizer.pose())
+
+
+def test_a_full_second_look_drops_no_candidate():
+    # A second look's list holding max_hypotheses poses may leave out rivals as good as those
+    # it holds (a corridor's many twins): a candidate missing from it is kept. Missing from a
+    # shorter list, it is dropped.
+    world, path, saved = twin_rooms_circle()
+    both = tuple(np.asarray(path[0]) + [dx, 0.0, 0.0] for dx in (0.0, 8.0))
+    elsewhere = [np.array([30.0 + 5 * k, 30.0, 0.0]) for k in range(3)]  # no candidate there
+    at = 20  # the window's end (2 s): the newest scan is searched again
+    twin = np.asarray(path[at]) + [8.0, 0.0, 0.0]
+    hypotheses = SlamConfig().relocalization.max_hypotheses
+    for others, expected in ((1, at), (hypotheses - 1, None)):
+        look = (twin, *elsewhere[:others])
+        script = {0: Ambiguous(both, (0.9, 0.9), "twins"),
+                  at: Ambiguous(look, (0.9,) * len(look), "the look")}
+        localizer = Localizer(SlamConfig(), saved, seed=1)
+        _, committed = drive_scripted(localizer, world, path, script, 30)
+        assert committed == expected, (len(look), committed)
+        assert localizer.n_candidates == (1 if expected else 2)
 
 
 def test_a_place_whose_scans_miss_much_of_the_map_is_not_committed():
