@@ -12,8 +12,10 @@ changes (docs/method.md §9).
    forward over the next, until its scans span ``confirm_seconds``; a candidate whose scans
    stop fitting is dropped, two that track into one place merge, and after the window a
    candidate missing the saved surfaces with many more points than the best one
-   (``confirm_misses``) is dropped. One left → tracking; none → searching; several → they stay
-   candidates until the scans tell them apart (a corridor);
+   (``confirm_misses``) is dropped, and so is one absent from a second look's poses (the
+   newest scan searched again; a list of ``max_hypotheses`` poses, maybe incomplete, drops
+   none). One left → tracking; none → searching; several → they stay candidates until the
+   scans tell them apart (a corridor);
 3. tracking — Alg. 5 against the saved node scans nearest the pose; ``lost_scans`` poor
    matches in a row → searching.
 
