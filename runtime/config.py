@@ -765,5 +765,15 @@ def session_changes(path) -> dict:
                 f"{path}: [{table}]: a saved session keeps the configuration its map was made "
                 f"with; only [{'], ['.join(SESSION_SECTIONS)}] may change")
     _from_data(data, None, str(path))  # every key and value checked here, naming the file
-    return {f"{table}.{key}": value for table, section in data.items()
+    return _dotted(data)
+
+
+def session_settings(config: SlamConfig) -> dict:
+    """``config``'s :data:`SESSION_SECTIONS` as changes (dotted keys, for :func:`override`):
+    a saved session loaded with them searches and tracks as ``config`` does."""
+    return _dotted({table: to_dict(getattr(config, table)) for table in SESSION_SECTIONS})
+
+
+def _dotted(tables: dict) -> dict:
+    return {f"{table}.{key}": value for table, section in tables.items()
             for key, value in section.items()}

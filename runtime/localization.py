@@ -34,7 +34,6 @@ from runtime.map_tracking import MapTracker, SavedMap
 from runtime.node_scans import NodeScans
 from runtime.pose import between, inverse
 from runtime.relocalization import Located, Relocalizer
-from runtime.rng import seed_state
 from runtime.scan import PointScan
 from runtime.scan_matcher import ScanMatcher
 from runtime.step_result import StepResult
@@ -49,7 +48,7 @@ class Localizer:
     def __init__(self, config: SlamConfig, saved: SavedMap, seed: int = 0, initial_pose=None):
         self.config, self.saved, self.seed = config, saved, seed
         self.relocalizer = Relocalizer(config, saved.poses, saved.nodes, saved.n_nodes, seed)
-        self.matcher = ScanMatcher(config.matcher, seed=seed + 1)
+        self.matcher = ScanMatcher(config.matcher, seed=seed + 1)  # (as reset reseeds them)
         self.trackers = [MapTracker(saved, self.matcher, config)
                          for _ in range(config.relocalization.max_hypotheses)]
         self.n_candidates = 0  # trackers[:n_candidates] follow live hypotheses
@@ -83,9 +82,9 @@ class Localizer:
         queries then do not depend on the ones before)."""
         self.phase, self.n_candidates, self.n_recent = SEARCHING, 0, 0
         self.have_odometry = False
-        if seed is not None:
-            seed_state(seed, self.relocalizer.matcher.optimizer.ws.rng)
-            seed_state(seed + 1, self.matcher.optimizer.ws.rng)
+        if seed is not None:  # as the constructor seeds them
+            self.relocalizer.matcher.optimizer.reseed(seed)
+            self.matcher.optimizer.reseed(seed + 1)
         if initial_pose is not None:
             self._commit_pose(np.asarray(initial_pose, np.float64))
 

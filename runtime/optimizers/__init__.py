@@ -104,6 +104,10 @@ class SwarmOptimizer:
         self.kind = self.config.kind
         self.dim = dim
         self.ws = swarm_workspace(self.config, dim)
+        self.reseed(seed)
+
+    def reseed(self, seed: int) -> None:
+        """Restart the random stream from ``seed``, as the constructor starts it."""
         seed_state(seed, self.ws.rng)
 
     def prepare(self, lo, hi, seed: int | None = None) -> None:
@@ -117,7 +121,7 @@ class SwarmOptimizer:
         self.ws.lo[:] = lo
         self.ws.hi[:] = hi
         if seed is not None:
-            seed_state(seed, self.ws.rng)
+            self.reseed(seed)
         c = self.config
         reset_run(
             self.ws,

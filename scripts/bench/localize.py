@@ -21,7 +21,14 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.config import SESSION_SECTIONS, ConfigError, SlamConfig, from_toml, to_dict, to_toml
+from runtime.config import (
+    SESSION_SECTIONS,
+    ConfigError,
+    SlamConfig,
+    from_toml,
+    session_settings,
+    to_toml,
+)
 from runtime.fixed_rate import SlamRuntime
 from runtime.localization import TRACKING
 from runtime.pose import between
@@ -54,9 +61,7 @@ MADE_BY = "made-by.toml"  # beside a kept session: the defaults its mapping run 
 def todays_search() -> dict:
     """Today's defaults of the sections a saved session may change (search and tracking): a
     kept map is scored with them, not with those saved in it."""
-    defaults = SlamConfig()
-    return {f"{table}.{key}": value for table in SESSION_SECTIONS
-            for key, value in to_dict(getattr(defaults, table)).items()}
+    return session_settings(SlamConfig())
 
 
 def _mapped_as_today(made_by: Path) -> bool:
