@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from runtime.config import SlamConfig
+from runtime.config import FrontEndConfig, SlamConfig
 from runtime.degeneracy import Degeneracy
 from runtime.loop_closure import propagate_covariance
 from runtime.node_scans import NodeScans
@@ -47,6 +47,19 @@ class Tracking:
     node_added: bool
     node: int  # the keyframe after this scan (the new node if one was added)
     error: float  # λ of the alignment (0 for the first scan)
+
+
+
+def contradicts_odometry(pose, guess, step, config: FrontEndConfig) -> bool:
+    """The odometry gate (docs/method.md §6.1): ``pose`` (a match) corrects ``guess``
+    (odometry's prediction, in the same frame; ``step`` the motion it predicted over) by more
+    than odometry errs over that motion."""
+    if config.odometry_gate is None:
+        return False
+    gate, share = config.odometry_gate, config.odometry_gate_share
+    correction = between(pose, guess)
+    return bool(math.hypot(correction[0], correction[1]) > gate[0] + share[0] * math.hypot(step[0], step[1])
+                or abs(correction[2]) > gate[1] + share[1] * abs(step[2]))
 
 
 class FrontEnd:
@@ -103,7 +116,8 @@ class FrontEnd:
         if self.config.front_end.degeneracy_ratio > 0:
             pose = self._constrained(scan, pose, guess)
         if (self._inliers(scan, pose) < self.config.front_end.min_track_inliers
-                or (odometry is not None and self._contradicts_odometry(pose, guess, step))):
+                or (odometry is not None
+                    and contradicts_odometry(pose, guess, step, self.config.front_end))):
             pose = self._recover(scan, pose, guess, odometry is not None)
         self.motion = between(pose, self.rel)
         self.rel = pose
@@ -220,17 +234,6 @@ class FrontEnd:
         c = self.config.front_end
         return self.matcher.inlier_fraction(scan, self.reference, pose, c.track_inlier_distance,
                                             c.track_inlier_slope)
-
-    def _contradicts_odometry(self, pose, guess, step) -> bool:
-        """The odometry gate (docs/method.md §6.1): a correction of odometry's
-        one-scan prediction larger than odometry errs by between two scans."""
-        c = self.config.front_end
-        if c.odometry_gate is None:
-            return False
-        gate, share = c.odometry_gate, c.odometry_gate_share
-        correction = between(pose, guess)
-        return bool(math.hypot(correction[0], correction[1]) > gate[0] + share[0] * math.hypot(step[0], step[1])
-                    or abs(correction[2]) > gate[1] + share[1] * abs(step[2]))
 
     def _constrained(self, scan, pose, guess):
         """The match where the scan pins it, the prediction where it does not

@@ -69,7 +69,8 @@ class Localizer:
         self.last_odometry = np.zeros(3)
         self.have_odometry = False
         self.counts = {"searches": 0, "ambiguous_answers": 0, "empty_answers": 0,
-                       "committed": 0, "lost": 0, "poor_matches": 0, "tracked_scans": 0}
+                       "committed": 0, "lost": 0, "poor_matches": 0, "tracked_scans": 0,
+                       "odometry_held": 0}
         self.fit_sum = 0.0  # over tracked scans
         self.trajectory_full = False
         if initial_pose is not None:
@@ -119,11 +120,13 @@ class Localizer:
 
     def _track(self, scan, motion) -> float:
         tracker = self.trackers[0]
-        fit = tracker.follow(scan, motion)
+        fit = tracker.follow(scan, motion, gate=True)
         self.counts["tracked_scans"] += 1
         self.fit_sum += fit
         if tracker.poor:
             self.counts["poor_matches"] += 1
+        if tracker.held:
+            self.counts["odometry_held"] += 1
         if tracker.poor >= self.config.localization.lost_scans:
             self.counts["lost"] += 1
             # the scans before were taken where the pose no longer fits: none is replayed

@@ -3,6 +3,7 @@ tracking in a saved map that stays byte for byte the same, a robot found with no
 again after it is carried away, twin rooms left unresolved rather than answered wrongly, a
 corrupt session refused, and two sessions joined into one map as good as one run's."""
 
+import dataclasses
 import hashlib
 import math
 import tracemalloc
@@ -88,6 +89,40 @@ def test_localization_finds_tracks_and_changes_nothing(saved_loop, tmp_path):
         saved.poses[0, 0] = 1.0
     with pytest.raises(ValueError, match="localization run changes no session"):
         runtime.save(tmp_path / "x.npz")
+
+
+def test_a_committed_pose_refuses_a_match_odometry_contradicts(saved_loop):
+    """The odometry gate (runtime.map_tracking, MapTracker._gated): a match that slips 0.5 m
+    is refused, at most ``max_held_scans`` times in a row."""
+    path, drive, scan = saved_loop
+
+    def slip(max_held, slips):
+        start = drive.path[drive.step % len(drive.path)]
+        runtime = SlamRuntime.localize(
+            path, initial_pose=start,
+            changes={**LOCKSTEP, "localization.max_held_scans": max_held})
+        feed(runtime, drive, 5, scan)  # committed and tracked
+        matcher = runtime.slam.trackers[0].matcher
+        align = matcher.align_scans
+
+        def slipping(*args, **kwargs):  # each match 0.5 m ahead of where it should be
+            match = align(*args, **kwargs)
+            return dataclasses.replace(match, pose=compose(match.pose, np.array([0.5, 0, 0])))
+
+        # and fitting as well as the right pose, as a slide along a corridor does (a match
+        # that fits poorly is replaced by the prediction anyway)
+        matcher.align_scans, matcher.inlier_fraction = slipping, lambda *a, **k: 1.0
+        truths, results = feed(runtime, drive, slips, scan, stamp0=0.5)
+        del matcher.align_scans, matcher.inlier_fraction
+        e = between(results[-1].pose, truths[-1])
+        return math.hypot(e[0], e[1]), runtime.slam.counts["odometry_held"]
+
+    error, held = slip(2, 1)
+    assert error < 0.1 and held == 1, (error, held)  # odometry's prediction stood in
+    error, held = slip(2, 3)
+    assert error > 0.4 and held == 2, (error, held)  # the third in a row was kept
+    error, held = slip(0, 1)
+    assert error > 0.4 and held == 0, (error, held)  # no gate: the slip is taken
 
 
 def test_a_robot_carried_away_is_lost_then_found_again(saved_loop):
