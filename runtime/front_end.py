@@ -49,17 +49,19 @@ class Tracking:
     error: float  # λ of the alignment (0 for the first scan)
 
 
-def contradicts_odometry(pose, guess, step, config: FrontEndConfig) -> bool:
+def contradicts_odometry(pose, guess, step, config: FrontEndConfig,
+                         heading: bool = True) -> bool:
     """The odometry gate (docs/method.md §6.1): ``pose`` (a match) corrects ``guess``
     (odometry's prediction, in the same frame; ``step`` the motion it predicted over) by more
-    than odometry errs over that motion."""
+    than odometry errs over that motion; ``heading``: its heading judged too, not only its
+    position."""
     if config.odometry_gate is None:
         return False
     gate, share = config.odometry_gate, config.odometry_gate_share
     correction = between(pose, guess)
     allowed = gate[0] + share[0] * math.hypot(step[0], step[1])
     return bool(math.hypot(correction[0], correction[1]) > allowed
-                or abs(correction[2]) > gate[1] + share[1] * abs(step[2]))
+                or (heading and abs(correction[2]) > gate[1] + share[1] * abs(step[2])))
 
 
 class FrontEnd:

@@ -205,8 +205,8 @@ class Localizer:
 
     def _confirm(self, scan, motion, stamp) -> None:
         lc = self.config.localization
-        for k in range(self.n_candidates):
-            self.trackers[k].follow(scan, motion)
+        for k in range(self.n_candidates):  # a lone candidate has no twin to merge with
+            self.trackers[k].follow(scan, motion, gate=self.n_candidates == 1)
         # a candidate that lost track is dropped; two that tracked into one place are one
         dropped = self._duplicates()
         self._keep(lambda t: t.poor < lc.lost_scans and id(t) not in dropped)

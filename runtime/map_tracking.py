@@ -11,8 +11,9 @@ frame — the anchor. It is rebuilt only when another node becomes nearer than t
 ``reanchor_distance``, so, as in the front end, most scans match a reference built earlier.
 A match that fits poorly is replaced by the prediction (the scan may be blocked by people or
 furniture the map does not have); ``lost_scans`` such matches in a row mean the pose is lost.
-Once a pose is committed, a match that contradicts odometry is refused too, as the front end
-refuses one, but for at most ``max_held_scans`` scans in a row (:meth:`MapTracker._gated`).
+With ``gate`` (a committed pose, or a lone candidate), a match that odometry contradicts is
+refused too, as the front end refuses one, but for at most ``max_held_scans`` scans in a row
+(:meth:`MapTracker._gated`).
 """
 
 from __future__ import annotations
@@ -115,7 +116,7 @@ class MapTracker:
         self.followed = False  # the pose came from a match, not from a search or a rewind
         self.held = False  # the last match was refused by the odometry gate
         self.n_held = 0  # matches refused in a row
-        self.unfixed = np.zeros(3)  # odometry's motion since the last match kept (m, 0, rad)
+        self.unfixed = np.zeros(3)  # odometry's path since the last match kept (m, 0, 0)
         self.fit_sum, self.fits = 0.0, 0  # since start()
         self.error = 0.0  # λ of the last match
 
@@ -147,7 +148,7 @@ class MapTracker:
     def follow(self, scan: PointScan, step=None, gate: bool = False) -> float:
         """Alg. 5 for ``scan`` from the pose moved by ``step`` (odometry's motion since the last
         scan; None: the last motion again); with ``gate``, a match odometry contradicts is
-        refused (see below). Returns the fit (inlier share) of the pose taken."""
+        refused (:meth:`_gated`). Returns the fit (inlier share) of the pose taken."""
         c = self.config.front_end
         predicted = compose(self.pose, self.motion if step is None else step)
         self._reanchor(predicted)
@@ -175,17 +176,19 @@ class MapTracker:
         return fit
 
     def _gated(self, pose, guess, step):
-        """The match, or odometry's prediction if the match contradicts it (the front end's
-        odometry gate, docs/method.md §9): a match that corrects odometry by more than
-        odometry errs is a slip, not a correction (Intel, scan 11,449: 0.73 m from a pose
-        1 mm off). What the gate allows grows with odometry's motion since the last match
-        kept, and at most ``max_held_scans`` matches in a row are refused: after a slow creep
-        the match that brings the pose back is a large correction too, and must not be
-        refused for long (Intel, scan 12,236: 0.37 m held while the robot stood)."""
+        """The match, or odometry's prediction if the match places the scan farther from it
+        than odometry errs (the front end's odometry gate, docs/method.md §9): a match that
+        fits can still slide, along a corridor or onto a wall drawn twice (Intel, scan 11,449:
+        0.73 m from a pose 1 mm off). Position only: on a fast turn odometry's heading can be a
+        scan out of step (ACES3, scan 3,719: 14°), and walls pin a match's heading. What the
+        gate allows grows with odometry's motion since the last match kept, and at most
+        ``max_held_scans`` matches in a row are refused: after a creep of small steps the
+        match that brings the pose back is a large correction too (Intel, scan 12,236: with
+        no limit, held 0.37 m off for more than ten scans)."""
         self.unfixed[0] += math.hypot(step[0], step[1])
-        self.unfixed[2] += abs(step[2])
         self.held = (self.n_held < self.config.localization.max_held_scans
-                     and contradicts_odometry(pose, guess, self.unfixed, self.config.front_end))
+                     and contradicts_odometry(pose, guess, self.unfixed, self.config.front_end,
+                                              heading=False))
         if not self.held:
             self.n_held = 0
             self.unfixed[:] = 0.0

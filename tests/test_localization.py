@@ -3,6 +3,7 @@ tracking in a saved map that stays byte for byte the same, a robot found with no
 again after it is carried away, twin rooms left unresolved rather than answered wrongly, a
 corrupt session refused, and two sessions joined into one map as good as one run's."""
 
+import contextlib
 import dataclasses
 import hashlib
 import math
@@ -91,38 +92,73 @@ def test_localization_finds_tracks_and_changes_nothing(saved_loop, tmp_path):
         runtime.save(tmp_path / "x.npz")
 
 
+@contextlib.contextmanager
+def slipping_matches(matcher, offset):
+    """While ``on[0]`` (``on`` yielded), each match lands ``offset`` (in its own frame) from
+    where it should, and fits as well as the right pose, as a slide along a corridor does (a
+    match that fits poorly is replaced by the prediction anyway)."""
+    align, fit, on = matcher.align_scans, matcher.inlier_fraction, [True]
+
+    def slipped(*args, **kwargs):
+        match = align(*args, **kwargs)
+        return dataclasses.replace(match, pose=compose(match.pose, offset)) if on[0] else match
+
+    matcher.align_scans = slipped
+    matcher.inlier_fraction = lambda *args, **kwargs: 1.0 if on[0] else fit(*args, **kwargs)
+    try:
+        yield on
+    finally:
+        del matcher.align_scans, matcher.inlier_fraction
+
+
 def test_a_committed_pose_refuses_a_match_odometry_contradicts(saved_loop):
     """The odometry gate (runtime.map_tracking, MapTracker._gated): a match that slips 0.5 m
-    is refused, at most ``max_held_scans`` times in a row."""
+    is refused, at most ``max_held_scans`` times in a row; a turn is not judged."""
     path, drive, scan = saved_loop
 
-    def slip(max_held, slips):
+    def slip(max_held, slips, offset=np.array([0.5, 0.0, 0.0])):
         start = drive.path[drive.step % len(drive.path)]
         runtime = SlamRuntime.localize(
             path, initial_pose=start,
             changes={**LOCKSTEP, "localization.max_held_scans": max_held})
         feed(runtime, drive, 5, scan)  # committed and tracked
-        matcher = runtime.slam.trackers[0].matcher
-        align = matcher.align_scans
-
-        def slipping(*args, **kwargs):  # each match 0.5 m ahead of where it should be
-            match = align(*args, **kwargs)
-            return dataclasses.replace(match, pose=compose(match.pose, np.array([0.5, 0, 0])))
-
-        # and fitting as well as the right pose, as a slide along a corridor does (a match
-        # that fits poorly is replaced by the prediction anyway)
-        matcher.align_scans, matcher.inlier_fraction = slipping, lambda *a, **k: 1.0
-        truths, results = feed(runtime, drive, slips, scan, stamp0=0.5)
-        del matcher.align_scans, matcher.inlier_fraction
+        with slipping_matches(runtime.slam.trackers[0].matcher, offset):
+            truths, results = feed(runtime, drive, slips, scan, stamp0=0.5)
         e = between(results[-1].pose, truths[-1])
-        return math.hypot(e[0], e[1]), runtime.slam.counts["odometry_held"]
+        return math.hypot(e[0], e[1]), abs(e[2]), runtime.slam.counts["odometry_held"]
 
-    error, held = slip(2, 1)
+    error, _, held = slip(2, 1)
     assert error < 0.1 and held == 1, (error, held)  # odometry's prediction stood in
-    error, held = slip(2, 3)
+    error, _, held = slip(2, 3)
     assert error > 0.4 and held == 2, (error, held)  # the third in a row was kept
-    error, held = slip(0, 1)
+    error, _, held = slip(0, 1)
     assert error > 0.4 and held == 0, (error, held)  # no gate: the slip is taken
+    # position only: a turn odometry has a scan out of step is not refused
+    _, turned, held = slip(2, 1, np.array([0.0, 0.0, 0.3]))
+    assert turned > 0.25 and held == 0, (turned, held)
+
+
+def test_a_lone_candidate_refuses_a_match_odometry_contradicts(saved_loop):
+    """While confirming, a lone candidate is gated as a committed pose is (several are not:
+    they must stay free to slide together and merge)."""
+    path, drive, scan = saved_loop
+    records = [drive.next() for _ in range(3)]
+
+    def confirm(max_held):
+        localizer = SlamRuntime.localize(
+            path, changes={"localization.max_held_scans": max_held}).slam
+        localizer.relocalizer = ScriptedSearch({0: Located(records[0][0], 1.0)})
+        with slipping_matches(localizer.trackers[0].matcher, np.array([0.5, 0.0, 0.0])) as on:
+            for k, (_, odometry, ranges) in enumerate(records):
+                on[0] = k == 2  # the last (the first match from the search's pose is never gated)
+                scan.set_ranges(ranges, drive.angles, 0.05, drive.max_range)
+                localizer.step(scan, odometry, 0.1 * k)
+        assert localizer.phase == CONFIRMING and localizer.n_candidates == 1
+        e = between(localizer.candidates()[0], records[-1][0])
+        return math.hypot(e[0], e[1])
+
+    assert confirm(2) < 0.1
+    assert confirm(0) > 0.4
 
 
 def test_a_robot_carried_away_is_lost_then_found_again(saved_loop):
