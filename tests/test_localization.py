@@ -1,7 +1,8 @@
 """Localization mode (runtime.localization, runtime.map_tracking) and multi-session mapping:
-tracking in a saved map that stays byte for byte the same, a robot found with no prior and
-again after it is carried away, twin rooms left unresolved rather than answered wrongly, a
-corrupt session refused, and two sessions joined into one map as good as one run's."""
+tracking in a saved map that stays byte for byte the same, a match that slips refused by the
+odometry gate, a robot found with no prior and again after it is carried away, twin rooms left
+unresolved rather than answered wrongly, a corrupt session refused, and two sessions joined
+into one map as good as one run's."""
 
 import contextlib
 import dataclasses
