@@ -421,6 +421,9 @@ class RelocalizationConfig(Section):
         "its poses are dropped; placed elsewhere alone, that place is confirmed instead")
     max_cells: int = _setting(50_000_000, "cells of the fine hit grid at most (memory: about "
                               "3 bytes per cell, docs/method.md §8)", ge=16)
+    slice_blocks: int = _setting(
+        5000, "branch-and-bound blocks a search scores between two looks at the clock when "
+        "the runtime spreads it over ticks (about 0.2-0.7 ms; docs/method.md §9)", ge=1)
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,7 @@ from runtime.config import SlamConfig
 from runtime.front_end import TRAJECTORY_STATUS, odometry_motion
 from runtime.map_tracking import MapTracker, SavedMap
 from runtime.node_scans import NodeScans
-from runtime.pose import between, inverse
+from runtime.pose import between, compose, inverse
 from runtime.relocalization import Located, Relocalizer
 from runtime.scan import PointScan
 from runtime.scan_matcher import ScanMatcher
@@ -59,6 +59,10 @@ class Localizer:
         self.recent_motions = np.zeros((ring, 3))  # odometry's motion into each; NaN: none
         self.n_recent, self._next = 0, 0
         self._replayed = PointScan(config.sensor.max_points)
+        # a search spread over ticks: its scan, and odometry's motion since that scan
+        self._pending = None
+        self._searched_scan = PointScan(config.sensor.max_points)
+        self._carried = np.zeros(3)
         self.phase = SEARCHING
         self.confirm_until = self.found_at = 0.0
         self._searched = False  # this scan already
@@ -83,6 +87,7 @@ class Localizer:
         queries then do not depend on the ones before)."""
         self.phase, self.n_candidates, self.n_recent = SEARCHING, 0, 0
         self.have_odometry = False
+        self._pending = None
         if seed is not None:  # as the constructor seeds them
             self.relocalizer.matcher.optimizer.reseed(seed)
             self.matcher.optimizer.reseed(seed + 1)
@@ -113,7 +118,7 @@ class Localizer:
         if self.phase == CONFIRMING:
             self._confirm(scan, motion, stamp)
         if self.phase == SEARCHING and not self._searched:  # (a second look may have)
-            self._search(scan, stamp)
+            self._search(scan, motion, stamp, clock, budget_end)
         took = clock() - start if clock is not None else 0.0
         self._record(stamp)
         return StepResult(self.pose(), False, False, error, took)
@@ -142,17 +147,39 @@ class Localizer:
         self._next = (k + 1) % len(self.recent_stamps)
         self.n_recent = min(self.n_recent + 1, len(self.recent_stamps))
 
-    def _search(self, scan, stamp) -> None:
-        """The global search (§8); its candidates are confirmed over the scans around."""
-        poses = self._look(scan)
+    def _search(self, scan, motion, stamp, clock=None, budget_end=None) -> None:
+        """The global search (§8); its candidates are confirmed over the scans around. Given
+        a clock and a budget it is spread over ticks (docs/method.md §9): begun on ``scan``,
+        gone on with in the next ticks until each one's budget is spent; its poses, found for
+        the scan it began on, are then carried to the newest by odometry's motion since."""
+        if self._pending is None:
+            if clock is None or budget_end is None:  # at once (the lockstep schedule)
+                poses = self._look(scan)
+                if poses:
+                    self._begin(poses, stamp)
+                return
+            self.counts["searches"] += 1
+            self._searched_scan.buffer[: scan.count] = scan.buffer[: scan.count]
+            self._searched_scan.count = scan.count
+            self._pending = self.relocalizer.begin(self._searched_scan)
+            self._carried[:] = 0.0
+        elif motion is not None:  # (a reading the inbox dropped: no motion known)
+            self._carried[:] = compose(self._carried, motion)
+        self._searched = True
+        if not self._pending.advance(clock, budget_end):
+            return
+        poses = self._poses(self._pending.answer)
+        self._pending = None
         if poses:
-            self._begin(poses, stamp)
+            self._begin(tuple(compose(p, self._carried) for p in poses), stamp)
 
     def _look(self, scan) -> tuple:
-        """The global search's poses for ``scan``: one, several rivals, or none."""
+        """The global search's poses for ``scan``, at once: one, several rivals, or none."""
         self.counts["searches"] += 1
         self._searched = True
-        answer = self.relocalizer.relocalize(scan)
+        return self._poses(self.relocalizer.relocalize(scan))
+
+    def _poses(self, answer) -> tuple:
         if isinstance(answer, Located):
             return (answer.pose,)
         self.counts["ambiguous_answers" if answer.poses else "empty_answers"] += 1

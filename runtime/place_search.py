@@ -223,51 +223,79 @@ def _sift(rows, root, n):
             return
 
 
+# the state of a branch and bound between slices (:func:`branch_and_bound`): a search with
+# S_PHASE 0 has not begun
+S_PHASE, S_NEXT, S_ROOTS, S_ROOT, S_DEPTH, S_FLOOR, S_FOUND, S_SCORED = range(8)
+SEARCH_STATE = 8
+UNLIMITED = 1 << 62  # a budget no search reaches: the whole search in one call
+
+
 @njit(cache=True)
 def branch_and_bound(bounds, shifts, groups, free, offsets, n_points, n_headings, min_score,
-                     ratio, cell_radius, heading_radius, roots, stack, found):
+                     ratio, cell_radius, heading_radius, roots, stack, found, state, budget):
     """The best pose on the grid scoring at least ``min_score``, and the distinct poses (farther
     than ``cell_radius`` cells or ``heading_radius`` steps from each other) scoring at least
     ``ratio`` of it: rows of ``found`` (score, heading, row, column), best first. Returns
-    ``(how many, blocks scored)``.
+    ``(how many, blocks scored, done)``.
 
     A search block of level ``h`` spans ``groups[h]`` headings and ``2ʰ × 2ʰ`` positions; its
     bound scores the query at the middle heading on ``bounds[h]``, shifted by ``shifts[h]``.
     Blocks whose bound is below ``ratio`` of the best so far are dropped: nothing in them can
     beat the best or rival it. ``roots`` and ``stack`` are scratch (rows of ``C_*`` columns).
+
+    Sliced: the search scores about ``budget`` blocks, then returns with ``done`` False and
+    its place kept in ``state`` (``SEARCH_STATE`` integers; ``state[S_PHASE] = 0`` begins a
+    new search), ``roots``, ``stack`` and ``found``; the next call goes on from there. Slices
+    visit the blocks in the same order as one call with ``UNLIMITED``, so they find the same.
     """
     top = bounds.shape[0] - 1
     ny, nx = bounds.shape[1], bounds.shape[2]
     w = 1 << top
     g = groups[top]
-    n_roots = 0
-    scored = 0
-    for a in range(0, n_headings, g):
-        for i in range(0, ny, w):
-            for j in range(0, nx, w):
-                if free[top, i, j] == 0:
-                    continue
-                s = _score(bounds, top, shifts[top], offsets, a + g // 2, n_points, i, j,
-                           min_score)
-                scored += 1
-                if s < min_score:
-                    continue
-                roots[n_roots, C_SCORE] = s
-                roots[n_roots, C_LEVEL] = top
-                roots[n_roots, C_HEADING] = a
-                roots[n_roots, C_ROW] = i
-                roots[n_roots, C_COL] = j
-                n_roots += 1
-    _sort_descending(roots, n_roots)
-    floor = min_score
-    n_found = 0
-    for r in range(n_roots):
-        if roots[r, C_SCORE] < floor:
-            break  # sorted: no later root reaches the floor either
-        depth = 1
-        for c in range(5):
-            stack[0, c] = roots[r, c]
+    na, ni, nj = (n_headings + g - 1) // g, (ny + w - 1) // w, (nx + w - 1) // w
+    if state[S_PHASE] == 3:  # done already
+        return state[S_FOUND], state[S_SCORED], True
+    if state[S_PHASE] == 0:
+        state[S_PHASE], state[S_NEXT], state[S_ROOTS], state[S_SCORED] = 1, 0, 0, 0
+    scored = state[S_SCORED]
+    limit = scored + budget
+    n_roots = state[S_ROOTS]
+    if state[S_PHASE] == 1:  # every top-level block scored, in heading, row, column order
+        for t in range(state[S_NEXT], na * ni * nj):
+            if scored >= limit:
+                state[S_NEXT], state[S_ROOTS], state[S_SCORED] = t, n_roots, scored
+                return 0, scored, False
+            a, i, j = (t // (ni * nj)) * g, ((t // nj) % ni) * w, (t % nj) * w
+            if free[top, i, j] == 0:
+                continue
+            s = _score(bounds, top, shifts[top], offsets, a + g // 2, n_points, i, j,
+                       min_score)
+            scored += 1
+            if s < min_score:
+                continue
+            roots[n_roots, C_SCORE] = s
+            roots[n_roots, C_LEVEL] = top
+            roots[n_roots, C_HEADING] = a
+            roots[n_roots, C_ROW] = i
+            roots[n_roots, C_COL] = j
+            n_roots += 1
+        _sort_descending(roots, n_roots)
+        state[S_PHASE], state[S_ROOTS], state[S_ROOT], state[S_DEPTH] = 2, n_roots, 0, 0
+        state[S_FLOOR], state[S_FOUND] = min_score, 0
+    floor, n_found = state[S_FLOOR], state[S_FOUND]
+    r, depth = state[S_ROOT], state[S_DEPTH]
+    while r < n_roots:
+        if depth == 0:  # the next root
+            if roots[r, C_SCORE] < floor:
+                break  # sorted: no later root reaches the floor either
+            for c in range(5):
+                stack[0, c] = roots[r, c]
+            depth = 1
         while depth > 0:
+            if scored >= limit:
+                state[S_ROOT], state[S_DEPTH], state[S_FLOOR] = r, depth, floor
+                state[S_FOUND], state[S_SCORED] = n_found, scored
+                return n_found, scored, False
             depth -= 1
             s = stack[depth, C_SCORE]
             if s < floor:
@@ -313,27 +341,31 @@ def branch_and_bound(bounds, shifts, groups, free, offsets, n_points, n_headings
                         stack[k, C_ROW] = ii
                         stack[k, C_COL] = jj
                         depth += 1
+        r += 1
     floor = max(min_score, int(math.ceil(ratio * found[0, 0]))) if n_found else min_score
     while n_found > 0 and found[n_found - 1, 0] < floor:  # rivals the best outgrew
         n_found -= 1
-    return n_found, scored
+    state[S_PHASE], state[S_FOUND], state[S_SCORED] = 3, n_found, scored
+    return n_found, scored, True
 
 
 @njit(cache=True)
 def refine_candidates(hits, free, offsets, n_points, n_headings, candidates, n_candidates,
                       cell_radius, heading_radius, window_cells, window_headings, max_moves,
-                      min_score, ratio, found):
+                      min_score, ratio, found, first=0, n_found=0, finish=True):
     """The best pose of each candidate's window on the (fine) hit grid — every cell within
     ``window_cells`` and heading within ``window_headings`` steps of the candidate (rows of
     ``candidates``: heading, row, column on this grid); a best on the window's edge moves the
     window there, up to ``max_moves`` times, so that the answer is a local best of the grid.
     Kept as :func:`branch_and_bound` keeps its leaves: merged with a kept pose of the same
     place, the distinct ones scoring at least ``ratio`` of the best in ``found``, best first.
-    Returns ``(how many, poses scored)``. ``hits`` is a one-level stack (``bounds[:1]``)."""
+    Returns ``(how many, poses scored)``. ``hits`` is a one-level stack (``bounds[:1]``).
+
+    Sliced: candidates ``first`` to ``n_candidates`` join the ``n_found`` rows ``found`` holds;
+    the rivals the best outgrew are dropped once ``finish``."""
     ny, nx = hits.shape[1], hits.shape[2]
-    n_found = 0
     scored = 0
-    for c in range(n_candidates):
+    for c in range(first, n_candidates):
         ca, ci, cj = candidates[c, 0], candidates[c, 1], candidates[c, 2]
         best, ba, bi, bj = -1, 0, 0, 0
         for _ in range(max_moves + 1):
@@ -356,7 +388,7 @@ def refine_candidates(hits, free, offsets, n_points, n_headings, candidates, n_c
         if best >= min_score:
             n_found = _keep(found, n_found, cell_radius, heading_radius, n_headings, best, ba,
                             bi, bj)
-    if n_found:
+    if n_found and finish:
         floor = max(min_score, int(math.ceil(ratio * found[0, 0])))
         while found[n_found - 1, 0] < floor:
             n_found -= 1

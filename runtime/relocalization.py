@@ -3,6 +3,8 @@
 
     relocalizer = Relocalizer(config, poses, nodes, n_nodes)
     answer = relocalizer.relocalize(scan)        # Located(pose, score) | Ambiguous
+    search = relocalizer.begin(scan)             # the same, spread over a runtime's ticks:
+    search.advance(clock, budget_end)            # True once search.answer is there
 
 1. search, coarse to fine: an exhaustive branch and bound over every standable cell and
    heading of a coarse hit grid (``coarse_resolution``, blurred by ``coarse_hit_sigma``) gives
@@ -33,6 +35,9 @@ from runtime.config import SlamConfig
 from runtime.node_scans import NodeScans
 from runtime.place_search import (
     HIT_MAX,
+    S_PHASE,
+    SEARCH_STATE,
+    UNLIMITED,
     PlaceMap,
     branch_and_bound,
     heading_step,
@@ -61,6 +66,29 @@ class Ambiguous:
     poses: tuple
     scores: tuple
     reason: str
+
+
+class Search:
+    """A global search under way (:meth:`Relocalizer.begin`): ``steps``, a generator yielding
+    between slices of the search, returns the answer."""
+
+    def __init__(self, steps):
+        self._steps = steps
+        self.answer = None  # once done: Located | Ambiguous (a list of poses for search())
+
+    def advance(self, clock=None, until: float | None = None) -> bool:
+        """Search on: to the end (True; the answer in :attr:`answer`), or — given ``clock`` —
+        until it reads ``until`` or later after a slice (False: not done yet)."""
+        if self.answer is not None:
+            return True
+        try:
+            while True:
+                next(self._steps)
+                if clock is not None and until is not None and clock() >= until:
+                    return False
+        except StopIteration as stop:
+            self.answer = stop.value
+            return True
 
 
 def _heading_count(resolution: float, reach: float) -> int:
@@ -100,6 +128,7 @@ class Relocalizer:
                                   rc.query_points, 2), np.int64)
         self._roots = np.zeros((roots, 5), np.int64)
         self._stack = np.zeros((8 * (rc.levels + 2), 5), np.int64)
+        self._state = np.zeros(SEARCH_STATE, np.int64)
         self._found = np.zeros((rc.max_hypotheses, 4), np.int64)
         if two:  # the first pass's query, offsets, candidates
             self._coarse_query = np.zeros((rc.query_points, 2))
@@ -117,7 +146,16 @@ class Relocalizer:
     # ------------------------------------------------------------------ the answer
     def relocalize(self, scan: PointScan) -> Located | Ambiguous:
         """Where ``scan`` (robot frame) was taken in the map, or :class:`Ambiguous`."""
-        return self._answer(scan)
+        search = self.begin(scan, sliced=False)
+        search.advance()
+        return search.answer
+
+    def begin(self, scan: PointScan, sliced: bool = True) -> Search:
+        """The search for ``scan``, to be gone on with by :meth:`Search.advance` — sliced,
+        ``slice_blocks`` branch-and-bound blocks at a time, so that a runtime can spread it
+        over ticks; it answers as :meth:`relocalize` does. ``scan`` must stay as it is until
+        the answer, and one search at a time shares this relocalizer's buffers."""
+        return Search(self._answer(scan, self.config.slice_blocks if sliced else UNLIMITED))
 
     def relocalize_merged(self, scans, motions) -> Located | Ambiguous:
         """Confirmation: ``scans`` (robot frames) merged into the last one's frame by
@@ -129,16 +167,17 @@ class Relocalizer:
             merged.buffer[n : n + s.count] = pts[:, :2]
             n += s.count
         merged.count = n
-        return self._answer(merged)
+        return self.relocalize(merged)
 
-    def _answer(self, scan: PointScan) -> Located | Ambiguous:
+    def _answer(self, scan: PointScan, budget: int):
+        """The search as a generator: it yields between slices and returns the answer."""
         rc = self.config
         query = self._query if scan.count <= len(self._query) else np.zeros((scan.count, 2))
         n = select_query(scan.buffer, scan.count, rc.query_range, rc.query_spacing,
                          rc.query_points, query)
         if n < 3:
             return Ambiguous((), (), f"only {n} usable points within {rc.query_range} m")
-        found = self.search(query, n)
+        found = yield from self._search(query, n, budget)
         if not found:
             return Ambiguous((), (), "no pose explains the scan (every score below min_score)")
         if len(found) > 1:
@@ -155,18 +194,31 @@ class Relocalizer:
     def search(self, query, n: int) -> list[tuple[np.ndarray, float]]:
         """The best pose and every distinct pose scoring ``ambiguity_ratio`` of it (at most
         ``max_hypotheses``), as ``(pose, mean hit value)``, best first."""
+        search = Search(self._search(query, n, UNLIMITED))
+        search.advance()
+        return search.answer
+
+    def _search(self, query, n: int, budget: int):
+        """:meth:`search` as a generator: it yields between slices of ``budget`` blocks of the
+        branch and bound."""
         rc = self.config
         n_headings, step = self._rotate(query, n, self.place, self._offsets)
         full = HIT_MAX * n
         min_score = int(math.ceil(rc.min_score * full))
         heading_radius = int(math.ceil(rc.distinct_angle / step))
         if self.coarse is None:  # one exhaustive pass
-            n_found, self.blocks_scored = branch_and_bound(
-                self.place.bounds, self.place.shifts, self.place.groups, self.place.free,
-                self._offsets, n, n_headings, min_score, rc.ambiguity_ratio, self.cell_radius,
-                heading_radius, self._roots, self._stack, self._found)
+            self._state[S_PHASE] = 0
+            while True:
+                n_found, self.blocks_scored, done = branch_and_bound(
+                    self.place.bounds, self.place.shifts, self.place.groups, self.place.free,
+                    self._offsets, n, n_headings, min_score, rc.ambiguity_ratio,
+                    self.cell_radius, heading_radius, self._roots, self._stack, self._found,
+                    self._state, budget)
+                if done:
+                    break
+                yield
         else:
-            n_candidates, blocks = self._coarse_pass(query, n)
+            n_candidates, blocks = yield from self._coarse_pass(query, n, budget)
             # each candidate's cell and heading on the fine grid; its window spans one coarse
             # cell and heading step around it, and one fine one more
             coarse = self.coarse
@@ -176,11 +228,20 @@ class Relocalizer:
                 x, y = coarse.position_of(int(row), int(col))
                 self._candidates[k, 0] = int(round(a * self._coarse_step / step)) % n_headings
                 self._candidates[k, 1:] = self.place.cell_of(x, y)
-            n_found, poses = refine_candidates(
-                self.place.bounds, self.place.free, self._offsets, n, n_headings,
-                self._candidates, n_candidates, self.cell_radius, heading_radius,
-                int(math.ceil(cells)) + 1, int(math.ceil(self._coarse_step / step)) + 1,
-                rc.refine_moves, min_score, rc.ambiguity_ratio, self._found)
+            # sliced, one candidate at a time (each scores a few thousand poses)
+            chunk = max(n_candidates, 1) if budget == UNLIMITED else 1
+            n_found, poses = 0, 0
+            for first in range(0, n_candidates, chunk):
+                last = min(first + chunk, n_candidates)
+                n_found, scored = refine_candidates(
+                    self.place.bounds, self.place.free, self._offsets, n, n_headings,
+                    self._candidates, last, self.cell_radius, heading_radius,
+                    int(math.ceil(cells)) + 1, int(math.ceil(self._coarse_step / step)) + 1,
+                    rc.refine_moves, min_score, rc.ambiguity_ratio, self._found, first,
+                    n_found, last == n_candidates)
+                poses += scored
+                if last < n_candidates:
+                    yield
             self.blocks_scored = blocks + poses
         found = []
         for score, a, row, col in self._found[:n_found]:
@@ -188,21 +249,26 @@ class Relocalizer:
             found.append((np.array([x, y, wrap_angle(int(a) * step)]), score / full))
         return found
 
-    def _coarse_pass(self, query, n: int) -> tuple[int, int]:
+    def _coarse_pass(self, query, n: int, budget: int = UNLIMITED):
         """The first pass: branch and bound on the coarse grid with the query thinned to
         ``coarse_points``; its best distinct poses (at most ``coarse_candidates``, scoring at
-        least ``coarse_ratio`` of the best) are the candidates. Returns ``(how many, blocks
-        scored)``."""
+        least ``coarse_ratio`` of the best) are the candidates. A generator, as
+        :meth:`search`; returns ``(how many, blocks scored)``."""
         rc, coarse = self.config, self.coarse
         m = select_query(query, n, math.inf, 0.0, rc.coarse_points, self._coarse_query)
         n_headings, self._coarse_step = self._rotate(self._coarse_query, m, coarse,
                                                      self._coarse_offsets)
-        return branch_and_bound(
-            coarse.bounds, coarse.shifts, coarse.groups, coarse.free, self._coarse_offsets, m,
-            n_headings, int(math.ceil(rc.coarse_min_score * HIT_MAX * m)), rc.coarse_ratio,
-            int(math.ceil(rc.coarse_distinct_distance / coarse.resolution)),
-            int(math.ceil(rc.coarse_distinct_angle / self._coarse_step)), self._roots,
-            self._stack, self._coarse_found)
+        self._state[S_PHASE] = 0
+        while True:
+            n_found, blocks, done = branch_and_bound(
+                coarse.bounds, coarse.shifts, coarse.groups, coarse.free, self._coarse_offsets,
+                m, n_headings, int(math.ceil(rc.coarse_min_score * HIT_MAX * m)),
+                rc.coarse_ratio, int(math.ceil(rc.coarse_distinct_distance / coarse.resolution)),
+                int(math.ceil(rc.coarse_distinct_angle / self._coarse_step)), self._roots,
+                self._stack, self._coarse_found, self._state, budget)
+            if done:
+                return n_found, blocks
+            yield
 
     def _rotate(self, query, n: int, place: PlaceMap, offsets) -> tuple[int, float]:
         """The query's cell offsets at each heading of ``place``'s grid; the heading step moves

@@ -38,6 +38,9 @@ from runtime.config import LoopClosureConfig
 from runtime.loop_closure import nearby_nodes
 from runtime.place_search import (
     HIT_MAX,
+    S_PHASE,
+    SEARCH_STATE,
+    UNLIMITED,
     branch_and_bound,
     heading_step,
     pool_bounds,
@@ -125,6 +128,7 @@ class WideLoopSearch:
         self._offsets = np.zeros((self.n_headings, c.wide_query_points, 2), np.int64)
         self._roots = np.zeros((self.n_headings * (-(-n // top)) ** 2, 5), np.int64)
         self._stack = np.zeros((8 * (levels + 2), 5), np.int64)
+        self._search_state = np.zeros(SEARCH_STATE, np.int64)
         self._found = np.zeros((2, 4), np.int64)  # the best and one rival are all we need
         self._index = np.zeros(max_nodes, np.int64)
         self._member_d2 = np.zeros(2 * c.submap_nodes + 1)
@@ -175,10 +179,12 @@ class WideLoopSearch:
         turn_points(self._query, n_query, first, self._turned)
         rotate_query(self._turned, n_query, res, self.step, self.n_headings, self._offsets)
         min_score = int(math.ceil(c.wide_min_score * HIT_MAX * n_query))
-        n_found, _ = branch_and_bound(self.bounds, self.shifts, self.groups, self.free,
-                                      self._offsets, n_query, self.n_headings, min_score,
-                                      c.wide_ratio, self.cell_radius, self.n_headings,
-                                      self._roots, self._stack, self._found)
+        self._search_state[S_PHASE] = 0
+        n_found, _, _ = branch_and_bound(self.bounds, self.shifts, self.groups, self.free,
+                                         self._offsets, n_query, self.n_headings, min_score,
+                                         c.wide_ratio, self.cell_radius, self.n_headings,
+                                         self._roots, self._stack, self._found,
+                                         self._search_state, UNLIMITED)
         if n_found == 0:
             return None
         if n_found > 1:

@@ -18,7 +18,7 @@ from test_relocalization import ANGLES, close, map_from
 import swarmslam_sim  # noqa: F401  (registers SwarmSlam-v0)
 from runtime.config import SlamConfig, override
 from runtime.fixed_rate import SlamRuntime
-from runtime.localization import CONFIRMING, TRACKING, Localizer
+from runtime.localization import CONFIRMING, SEARCHING, TRACKING, Localizer
 from runtime.map_tracking import SavedMap, nearest_nodes
 from runtime.pose import between, compose
 from runtime.relocalization import Ambiguous, Located
@@ -160,6 +160,24 @@ def test_a_lone_candidate_refuses_a_match_odometry_contradicts(saved_loop):
 
     assert confirm(2) < 0.1
     assert confirm(0) > 0.4
+
+
+def test_a_search_spread_over_ticks_finds_the_pose(saved_loop):
+    """Given a clock and a budget, the global search is sliced across ticks (one slice a
+    tick here: the clock always reads past the budget); the poses it finds for the scan it
+    began on are carried to the newest by odometry, then confirmed and committed."""
+    path, drive, scan = saved_loop
+    localizer = SlamRuntime.localize(path, changes={"relocalization.slice_blocks": 1000}).slam
+    searching = 0
+    for k in range(60):
+        truth, odometry, ranges = drive.next()
+        scan.set_ranges(ranges, drive.angles, 0.05, drive.max_range)
+        result = localizer.step(scan, odometry, 0.1 * k, clock=lambda: 1.0, budget_end=0.0)
+        searching += localizer.phase == SEARCHING
+    assert searching >= 5, searching  # one search, spread over that many ticks
+    assert localizer.counts["searches"] <= 2 and localizer.phase == TRACKING
+    e = between(result.pose, truth)
+    assert math.hypot(e[0], e[1]) < 0.1 and abs(e[2]) < math.radians(3), e
 
 
 def test_a_robot_carried_away_is_lost_then_found_again(saved_loop):

@@ -12,6 +12,8 @@ from runtime.config import SlamConfig, override
 from runtime.node_scans import NodeScans
 from runtime.place_search import (
     HIT_MAX,
+    SEARCH_STATE,
+    UNLIMITED,
     PlaceMap,
     bound_shift,
     branch_and_bound,
@@ -88,12 +90,26 @@ def test_branch_and_bound_finds_the_exact_best_pose():
     roots = np.zeros((n_headings * 64, 5), np.int64)
     stack = np.zeros((64, 5), np.int64)
     found = np.zeros((4, 4), np.int64)
-    n_found, scored = branch_and_bound(bounds, shifts, groups, free, offsets, n, n_headings, 1,
-                                       1.0, 0, 0, roots, stack, found)
-    assert n_found == 1
+    state = np.zeros(SEARCH_STATE, np.int64)
+    n_found, scored, done = branch_and_bound(bounds, shifts, groups, free, offsets, n,
+                                             n_headings, 1, 1.0, 0, 0, roots, stack, found,
+                                             state, UNLIMITED)
+    assert done and n_found == 1
     assert found[0, 0] == brute.max()
     assert brute[found[0, 1], found[0, 2], found[0, 3]] == brute.max()
     assert scored < brute.size  # and it scored fewer blocks than there are poses
+    # sliced, 7 blocks at a time: the same blocks in the same order, so the same answer
+    whole = found.copy()
+    found[:], state[:], slices = 0, 0, 0
+    while True:
+        n_sliced, scored_sliced, done = branch_and_bound(
+            bounds, shifts, groups, free, offsets, n, n_headings, 1, 1.0, 0, 0, roots, stack,
+            found, state, 7)
+        slices += 1
+        if done:
+            break
+    assert (n_sliced, scored_sliced) == (n_found, scored) and np.array_equal(found, whole)
+    assert slices >= scored // 15  # a slice scores its budget and one block's children at most
 
 
 def test_a_full_list_of_poses_is_the_top_of_brute_force():
@@ -106,9 +122,10 @@ def test_a_full_list_of_poses_is_the_top_of_brute_force():
         np.random.default_rng(8), 32, 36, groups, 0.4, (slice(8, 24), slice(8, 28)), 1.0,
         0.5, n_headings, n)
     found = np.zeros((k, 4), np.int64)
-    n_found, _ = branch_and_bound(bounds, shifts, groups, free, offsets, n, n_headings, 1, 0.01,
-                                  0, 0, np.zeros((n_headings * 64, 5), np.int64),
-                                  np.zeros((64, 5), np.int64), found)
+    n_found, _, _ = branch_and_bound(bounds, shifts, groups, free, offsets, n, n_headings, 1,
+                                     0.01, 0, 0, np.zeros((n_headings * 64, 5), np.int64),
+                                     np.zeros((64, 5), np.int64), found,
+                                     np.zeros(SEARCH_STATE, np.int64), UNLIMITED)
     assert n_found == k
     standable = brute[:, free[0] == 1]
     assert found[:, 0].tolist() == sorted(standable.ravel().tolist(), reverse=True)[:k]
@@ -178,10 +195,42 @@ def test_two_identical_rooms_are_ambiguous_not_wrong(config):
         assert any(close(p, mirror) for p in answer.poses)
 
 
+def test_a_search_spread_over_slices_answers_as_one_call(room):
+    """Relocalizer.begin / Search.advance (a runtime spreading the search over ticks): both
+    passes sliced give the answer of one call, bit for bit, coarse to fine and exact."""
+    world, path, relocalizer = room
+    poses, nodes = relocalizer.poses, relocalizer.nodes
+    rng = np.random.default_rng(10)
+    for config in (COARSE_TO_FINE, SlamConfig()):
+        searcher = Relocalizer(override(config, {"relocalization.slice_blocks": 50}), poses,
+                               nodes, len(poses))
+        for _ in range(4):
+            truth = path[rng.integers(len(path))] + [0.0, 0.0, rng.uniform(-np.pi, np.pi)]
+            scan = query(world, truth, rng)
+            searcher.matcher.optimizer.reseed(3)  # the polish's swarm draws the same
+            whole = searcher.relocalize(scan)
+            searcher.matcher.optimizer.reseed(3)
+            search, ticks = searcher.begin(scan), 1
+            while not search.advance(clock=lambda: 1.0, until=0.0):  # one slice per call
+                ticks += 1
+            sliced = search.answer
+            assert ticks > 10 and type(sliced) is type(whole), (ticks, whole, sliced)
+            if isinstance(whole, Located):
+                assert np.array_equal(sliced.pose, whole.pose) and sliced.score == whole.score
+            else:
+                assert all(np.array_equal(a, b) for a, b in zip(sliced.poses, whole.poses))
+                assert sliced.scores == whole.scores
+
+
 def test_a_scan_from_elsewhere_is_not_placed(room):
     _, _, relocalizer = room
     other = room_world(11, size=(7.0, 14.0), boxes=3, walls=2)
     answer = relocalizer.relocalize(query(other, (3.5, 7.0, 0.2), np.random.default_rng(3)))
+    assert isinstance(answer, Ambiguous) and not answer.poses, answer
+    # points beyond every wall of the map: the coarse pass keeps no candidate at all
+    far = PointScan(64)
+    far.set_points(np.c_[np.linspace(16.0, 19.5, 64), np.zeros(64)])  # (within query_range)
+    answer = relocalizer.relocalize(far)
     assert isinstance(answer, Ambiguous) and not answer.poses, answer
 
 
@@ -217,8 +266,9 @@ def test_the_search_allocates_nothing_after_warm_up(room):
     rotate_query(pts, n, coarse.resolution, 2 * math.pi / n_coarse, n_coarse, offsets)
     coarse_args = (coarse.bounds, coarse.shifts, coarse.groups, coarse.free, offsets, n,
                    n_coarse, int(0.5 * HIT_MAX * n), 0.8, 1, 4, relocalizer._roots,
-                   relocalizer._stack, relocalizer._coarse_found)
-    n_candidates, _ = branch_and_bound(*coarse_args)
+                   relocalizer._stack, relocalizer._coarse_found, relocalizer._state, UNLIMITED)
+    relocalizer._state[:] = 0
+    n_candidates, _, _ = branch_and_bound(*coarse_args)
     assert n_candidates > 0
     rotate_query(pts, n, place.resolution, 2 * math.pi / relocalizer.n_headings,
                  relocalizer.n_headings, relocalizer._offsets)
@@ -232,6 +282,7 @@ def test_the_search_allocates_nothing_after_warm_up(room):
     try:
         before, _ = tracemalloc.get_traced_memory()
         for _ in range(20):
+            relocalizer._state[0] = 0  # a new search each time
             branch_and_bound(*coarse_args)
             refine_candidates(*fine_args)
         after, peak = tracemalloc.get_traced_memory()
