@@ -67,7 +67,8 @@ class GraphSlam:
         self.locator = Localizer(self.config, saved, seed)
 
     def _rejoin(self, scan, odometry, stamp, clock, budget_end) -> StepResult:
-        located = self.locator.step(scan, odometry, stamp, clock)
+        # with a clock and a budget its global search is spread over ticks (docs/method.md §9)
+        located = self.locator.step(scan, odometry, stamp, clock, budget_end)
         if self.locator.phase != TRACKING:
             return located  # no pose yet: nothing is added to the map
         tracker = self.locator.trackers[0]
