@@ -121,25 +121,23 @@ class MapTracker:
         self.error = 0.0  # λ of the last match
 
     def start(self, pose) -> None:
-        self.pose[:] = pose
-        self.motion[:] = 0.0
-        self.anchor = -1
-        self.poor, self.fit_sum, self.fits = 0, 0.0, 0
-        self.followed = self.held = False
-        self.unfixed[:] = 0.0
-        self.n_held = 0
+        self._restart(pose, 0.0)
+        self.fit_sum, self.fits = 0.0, 0
 
     def rewind(self, pose, motion) -> None:
         """Back at ``pose``, the scan :meth:`start` began at, after following earlier scans
         backward: their fits count, the rest starts afresh (``motion``: the last scan-to-scan
         motion going forward)."""
+        self._restart(pose, motion)
+
+    def _restart(self, pose, motion) -> None:
+        """At ``pose``, not yet tracked: no reference, no poor match, nothing held."""
         self.pose[:] = pose
         self.motion[:] = motion
         self.anchor = -1
-        self.poor = 0
+        self.poor, self.n_held = 0, 0
         self.followed = self.held = False
         self.unfixed[:] = 0.0
-        self.n_held = 0
 
     @property
     def mean_fit(self) -> float:

@@ -90,6 +90,11 @@ class Search:
             self.answer = stop.value
             return True
 
+    def result(self):
+        """The answer, the search gone on with to its end."""
+        self.advance()
+        return self.answer
+
 
 def _heading_count(resolution: float, reach: float) -> int:
     return int(math.ceil(2 * math.pi / heading_step(resolution, reach)))
@@ -146,9 +151,7 @@ class Relocalizer:
     # ------------------------------------------------------------------ the answer
     def relocalize(self, scan: PointScan) -> Located | Ambiguous:
         """Where ``scan`` (robot frame) was taken in the map, or :class:`Ambiguous`."""
-        search = self.begin(scan, sliced=False)
-        search.advance()
-        return search.answer
+        return self.begin(scan, sliced=False).result()
 
     def begin(self, scan: PointScan, sliced: bool = True) -> Search:
         """The search for ``scan``, to be gone on with by :meth:`Search.advance` — sliced,
@@ -194,9 +197,7 @@ class Relocalizer:
     def search(self, query, n: int) -> list[tuple[np.ndarray, float]]:
         """The best pose and every distinct pose scoring ``ambiguity_ratio`` of it (at most
         ``max_hypotheses``), as ``(pose, mean hit value)``, best first."""
-        search = Search(self._search(query, n, UNLIMITED))
-        search.advance()
-        return search.answer
+        return Search(self._search(query, n, UNLIMITED)).result()
 
     def _search(self, query, n: int, budget: int):
         """:meth:`search` as a generator: it yields between slices of ``budget`` blocks of the
@@ -207,16 +208,10 @@ class Relocalizer:
         min_score = int(math.ceil(rc.min_score * full))
         heading_radius = int(math.ceil(rc.distinct_angle / step))
         if self.coarse is None:  # one exhaustive pass
-            self._state[S_PHASE] = 0
-            while True:
-                n_found, self.blocks_scored, done = branch_and_bound(
-                    self.place.bounds, self.place.shifts, self.place.groups, self.place.free,
-                    self._offsets, n, n_headings, min_score, rc.ambiguity_ratio,
-                    self.cell_radius, heading_radius, self._roots, self._stack, self._found,
-                    self._state, budget)
-                if done:
-                    break
-                yield
+            n_found, self.blocks_scored = yield from self._branch_and_bound(
+                budget, self.place.bounds, self.place.shifts, self.place.groups,
+                self.place.free, self._offsets, n, n_headings, min_score, rc.ambiguity_ratio,
+                self.cell_radius, heading_radius, self._roots, self._stack, self._found)
         else:
             n_candidates, blocks = yield from self._coarse_pass(query, n, budget)
             # each candidate's cell and heading on the fine grid; its window spans one coarse
@@ -258,16 +253,22 @@ class Relocalizer:
         m = select_query(query, n, math.inf, 0.0, rc.coarse_points, self._coarse_query)
         n_headings, self._coarse_step = self._rotate(self._coarse_query, m, coarse,
                                                      self._coarse_offsets)
+        return (yield from self._branch_and_bound(
+            budget, coarse.bounds, coarse.shifts, coarse.groups, coarse.free,
+            self._coarse_offsets, m, n_headings, int(math.ceil(rc.coarse_min_score * HIT_MAX * m)),
+            rc.coarse_ratio, int(math.ceil(rc.coarse_distinct_distance / coarse.resolution)),
+            int(math.ceil(rc.coarse_distinct_angle / self._coarse_step)), self._roots,
+            self._stack, self._coarse_found))
+
+    def _branch_and_bound(self, budget: int, *args):
+        """:func:`runtime.place_search.branch_and_bound` over ``args`` begun afresh, as a
+        generator yielding between slices of ``budget`` blocks; returns ``(how many, blocks
+        scored)``."""
         self._state[S_PHASE] = 0
         while True:
-            n_found, blocks, done = branch_and_bound(
-                coarse.bounds, coarse.shifts, coarse.groups, coarse.free, self._coarse_offsets,
-                m, n_headings, int(math.ceil(rc.coarse_min_score * HIT_MAX * m)),
-                rc.coarse_ratio, int(math.ceil(rc.coarse_distinct_distance / coarse.resolution)),
-                int(math.ceil(rc.coarse_distinct_angle / self._coarse_step)), self._roots,
-                self._stack, self._coarse_found, self._state, budget)
+            n_found, scored, done = branch_and_bound(*args, self._state, budget)
             if done:
-                return n_found, blocks
+                return n_found, scored
             yield
 
     def _rotate(self, query, n: int, place: PlaceMap, offsets) -> tuple[int, float]:
