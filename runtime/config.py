@@ -277,6 +277,9 @@ class FrontEndConfig(Section):
         gt=0, le=1)
     curvature_step: tuple[float, float] = _setting(
         (0.05, 0.01), "finite-difference steps (m, rad) of the match's curvature", gt=0)
+    spread_corrections: bool = _setting(
+        True, "a scan between two nodes takes the graph's correction of both, shared by time "
+        "(false: its tracking node's alone)")
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,7 @@ from runtime.config import FrontEndConfig, SlamConfig
 from runtime.degeneracy import Degeneracy
 from runtime.loop_closure import propagate_covariance
 from runtime.node_scans import NodeScans
-from runtime.pose import between, compose
+from runtime.pose import between, compose, interpolate
 from runtime.pose_graph import ODOMETRY, PoseGraph, information_from_sigma
 from runtime.scan import PointScan
 from runtime.scan_matcher import ScanMatcher
@@ -199,10 +199,35 @@ class FrontEnd:
                         1 / c.sigma_rotation**2])
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
-        """Timestamps and optimised poses of every scan recorded."""
+        """Timestamps and optimised poses of every scan recorded (docs/method.md §6.2)."""
         n = self.n_scans
-        poses = compose(self.graph.poses[self.scan_node[:n]], self.scan_rel[:n])
-        return self.scan_stamp[:n].copy(), poses
+        node, rel, stamp = self.scan_node[:n], self.scan_rel[:n], self.scan_stamp[:n]
+        poses = compose(self.graph.poses[node], rel)
+        if self.config.front_end.spread_corrections:
+            poses = self._spread_corrections(node, rel, stamp, poses)
+        return stamp.copy(), poses
+
+    def _spread_corrections(self, node, rel, stamp, poses):
+        """Each scan tracked from node k before node k + 1 was made is placed from both: from k
+        by its tracked pose, from k + 1 by that pose taken back along the edge that made k + 1,
+        and the two blended by the scan's share of the time between the nodes. When the graph
+        bends the chain between k and k + 1, the scans between them follow the bend instead of
+        moving with k alone (docs/method.md §6.2)."""
+        g = self.graph
+        ij, kind, z = g.ij[: g.n_edges], g.kind[: g.n_edges], g.z[: g.n_edges]
+        made = (kind == ODOMETRY) & (ij[:, 1] == ij[:, 0] + 1)  # node k → k + 1 (Alg. 6)
+        step = np.full((g.n_nodes, 3), np.nan)
+        step[ij[made, 0]] = z[made]
+        nxt = np.minimum(node + 1, g.n_nodes - 1)
+        gap = g.stamps[nxt] - g.stamps[node]
+        ok = (node + 1 < g.n_nodes) & ~np.isnan(step[node, 0]) & (gap > 0)
+        if not np.any(ok):
+            return poses
+        k = node[ok]
+        from_next = compose(g.poses[k + 1], between(rel[ok], step[k]))  # z⁻¹ ⊕ rel, from k + 1
+        share = np.clip((stamp[ok] - g.stamps[k]) / gap[ok], 0.0, 1.0)
+        poses[ok] = interpolate(poses[ok], from_next, share)
+        return poses
 
     # ------------------------------------------------------------------ helpers
     def _start(self, scan, odometry, stamp):

@@ -97,6 +97,16 @@ def between(va, vb):
     return np.stack([dx * c + dy * s, -dx * s + dy * c, wrap_angle(ta - tb)], axis=-1)
 
 
+def interpolate(va, vb, w):
+    """Poses ``w`` of the way from ``va`` to ``vb`` (``w`` in [0, 1], broadcasting): the
+    position on the line, the heading along the shorter arc (Eq. 3)."""
+    xa, ya, ta = _split(va)
+    xb, yb, tb = _split(vb)
+    w = np.asarray(w, dtype=np.float64)
+    return np.stack([xa + w * (xb - xa), ya + w * (yb - ya),
+                     wrap_angle(ta + w * wrap_angle(tb - ta))], axis=-1)
+
+
 def inverse(d):
     """Eq. 4: ``Dba = (0,0,0) ⊖ Dab``."""
     d = np.asarray(d, dtype=np.float64)

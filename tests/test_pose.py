@@ -12,6 +12,7 @@ from runtime.pose import (
     compose,
     compose_nb,
     from_matrix,
+    interpolate,
     inverse,
     to_matrix,
     transform_point_nb,
@@ -84,6 +85,22 @@ def test_transform_point_matches_matrix(p, pt):
 def test_numba_kernels_equal_numpy(a, b):
     assert np.allclose(compose_nb(*a, *b), compose(a, b), atol=1e-9)
     assert np.allclose(between_nb(*a, *b), between(a, b), atol=1e-9)
+
+
+@given(poses, poses)
+def test_interpolate_runs_from_one_pose_to_the_other_the_short_way(a, b):
+    close(interpolate(a, b, 0.0), a)
+    close(interpolate(a, b, 1.0), b)
+    half = interpolate(a, b, 0.5)
+    assert np.allclose(half[:2], (a[:2] + b[:2]) / 2)
+    turn = wrap_angle(b[2] - a[2])  # the shorter arc, whichever way round the angles were given
+    assert abs(wrap_angle(half[2] - a[2])) <= abs(turn) / 2 + 1e-9
+    assert abs(wrap_angle(interpolate(a, b, 0.25)[2] - a[2] - turn / 4)) < 1e-9
+
+
+def test_interpolate_crosses_pi_not_zero():
+    mid = interpolate([0, 0, 3.0], [2, 0, -3.0], 0.5)
+    assert np.allclose(mid[:2], [1, 0]) and abs(abs(mid[2]) - math.pi) < 1e-12
 
 
 def test_vectorised_over_leading_axes():

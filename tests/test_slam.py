@@ -166,6 +166,29 @@ def test_scans_only_recovers_after_a_gap_in_the_stream():
     assert err.max() < 0.15, err.max()
 
 
+def test_scans_between_two_nodes_share_the_graphs_correction_of_both():
+    slam, _, _ = run()
+    fe, g = slam.front_end, slam.graph
+    stamps, before = slam.trajectory()
+    node = fe.scan_node[: fe.n_scans]
+    m = int(np.argmax(np.bincount(node)[: g.n_nodes - 2]))  # the node that tracked most scans
+    between_nodes = node == m
+    assert between_nodes.sum() >= 3
+    g.poses[m + 1 :, 0] += 0.3  # the graph bends the chain between nodes m and m + 1
+    _, after = slam.trajectory()
+    share = (stamps[between_nodes] - g.stamps[m]) / (g.stamps[m + 1] - g.stamps[m])
+    assert share.min() == 0 and 0 < share[1] < share[2] < 1  # the node's own scan, then two
+    moved = after - before
+    assert np.allclose(moved[between_nodes, 0], 0.3 * share, atol=1e-12)
+    assert np.allclose(moved[between_nodes, 1:], 0.0, atol=1e-12)
+    assert np.allclose(moved[node < m], 0.0, atol=1e-12)
+    assert np.allclose(moved[node > m, 0], 0.3, atol=1e-12)
+    # Off, each scan moves with its tracking node alone.
+    fe.config = override(slam.config, {"front_end.spread_corrections": False})
+    _, rigid = slam.trajectory()
+    assert np.allclose(rigid[between_nodes], compose(g.poses[m], fe.scan_rel[:fe.n_scans][between_nodes]))
+
+
 def test_submap_reference_tracks_and_closes_the_loop():
     slam, truth, _ = run(config=override(SlamConfig(), {"front_end.submap_nodes": 4}))
     _, poses = slam.trajectory()
