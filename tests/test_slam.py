@@ -186,7 +186,8 @@ def test_scans_between_two_nodes_share_the_graphs_correction_of_both():
     # Off, each scan moves with its tracking node alone.
     fe.config = override(slam.config, {"front_end.spread_corrections": False})
     _, rigid = slam.trajectory()
-    assert np.allclose(rigid[between_nodes], compose(g.poses[m], fe.scan_rel[:fe.n_scans][between_nodes]))
+    tracked = fe.scan_rel[: fe.n_scans][between_nodes]
+    assert np.allclose(rigid[between_nodes], compose(g.poses[m], tracked))
 
 
 def test_submap_reference_tracks_and_closes_the_loop():
