@@ -159,7 +159,8 @@ class BackEnd:
             self._finish()
             return
         if kind == WIDE:
-            proposal = self.wide.propose(self.graph.poses, self.nodes, self.node)
+            proposal = self.wide.propose(self.graph.poses, self.nodes, self.node,
+                                         self.last_closure)
             if proposal is None:
                 self._finish()
                 return
@@ -328,7 +329,7 @@ class BackEnd:
             g.poses[: g.n_nodes] = saved
             self.status = f"capacity reached: {exc}"
             return False
-        if settled and loops.consistent(g, edge, total_before):
+        if settled and loops.consistent(g, edge, total_before, proposal=self.widened):
             loops.accepted += 1
             self.revision += 1
             if node - candidate >= loops.config.wide_min_gap:  # a closure with the old map

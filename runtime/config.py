@@ -164,7 +164,7 @@ class MatcherConfig(Section):
     resolution: float = _setting(0.05, "m per distance-field / local-grid cell", gt=0)
     kernel: str = _setting("cauchy", "per-point cost: 'paper' is Eq. 14, 'cauchy' "
                            "log(1 + d²/c²)", choices=KERNEL_NAMES)
-    cauchy_scale: float = _setting(0.1, "m, c of the Cauchy kernel", gt=0)
+    cauchy_scale: float = _setting(0.07, "m, c of the Cauchy kernel", gt=0)
     field_radius: float = _setting(0.5, "m: distances exact below, truncated above", gt=0)
     max_gap: float = _setting(1.0, "m: reference points closer than this form a surface", ge=0)
     coarse_resolution: float = _setting(0.1, "m, the global stage's coarse field (0: none)", ge=0)
@@ -173,6 +173,13 @@ class MatcherConfig(Section):
     refine_evaluations: int = _setting(600, "budget of the local stage (0: none)", ge=0)
     refine_window: tuple[float, float, float] = _setting(
         (0.15, 0.15, 0.08), "half-widths (m, m, rad) of the local stage", gt=0)
+    polish_step: tuple[float, float] = _setting(
+        (0.01, 0.005), "first steps (m, rad) of the compass search that settles the swarm's "
+        "match on the fine field", gt=0)
+    polish_halvings: int = _setting(
+        6, "times the compass search halves its steps before it ends", ge=0)
+    polish_evaluations: int = _setting(
+        300, "budget of the compass search (0: no polish)", ge=0)
     predict_first: float = _setting(
         0.0, "with a guess, the local stage runs first at it; its match stands if λ is at "
         "most this many times the running mean λ, skipping the global stage (0: off)", ge=0)
@@ -194,7 +201,8 @@ class MatcherConfig(Section):
     def paper(cls, optimizer: str = "abc", **overrides) -> MatcherConfig:
         """The paper's matcher: Eq. 14 on a single field, the swarm halted by its own rules."""
         base = dict(swarm=SwarmConfig(optimizer=optimizer), kernel="paper", field_radius=1.0,
-                    coarse_resolution=0.0, stride=1, refine_evaluations=0, scan_to_map=True)
+                    coarse_resolution=0.0, stride=1, refine_evaluations=0, polish_evaluations=0,
+                    scan_to_map=True)
         base.update(overrides)
         return cls(**base)
 
@@ -298,6 +306,9 @@ class LoopClosureConfig(Section):
     chi2_gate: float = _setting(7.81, "χ²₃ at 95% on the new edge's own error after optimising",
                                 gt=0)
     total_gate: float = _setting(16.27, "χ²₃ at 99.9% on the rise of the total error", gt=0)
+    wide_total_gate: float | None = _setting(
+        None, "the rise of the total error a wide search's proposal may cause (none: its own "
+        "error alone judges it; the rise measures the drift it repairs)", gt=0)
     min_inliers: float = _setting(0.8, "share of points on the submap's surfaces that accepts a "
                                   "loop match (strict: a wrong loop bends the map)", ge=0, le=1)
     min_overlap: float = _setting(
@@ -334,7 +345,13 @@ class LoopClosureConfig(Section):
     wide_min_gap: int = _setting(100, "nodes just behind the new one left out of the wide "
                                  "search's map (they drifted with it)", ge=1)
     wide_radius: float = _setting(60.0, "m: half-width of the square of positions searched "
-                                  "around the graph's estimate", gt=0)
+                                  "around the graph's estimate, at the least", gt=0)
+    wide_drift: float = _setting(
+        0.2, "m of half-width per m of path since the last closure with the old map: the "
+        "window grows with the drift it may have to bridge", ge=0)
+    wide_max_radius: float = _setting(
+        150.0, "m: the half-width the window grows to at most (its grids are sized for it)",
+        gt=0)
     wide_angle: float = _setting(0.5, "rad: headings searched either side of the estimate's",
                                  gt=0)
     wide_resolution: float = _setting(0.4, "m per cell of the wide search's hit grid", gt=0)

@@ -52,8 +52,12 @@ from runtime.threshold import RejectionThreshold
     S_REFINE_T,
     S_COARSE,
     S_PREDICT,
-) = range(16)
-N_SETTINGS = 16
+    S_POLISH_XY,
+    S_POLISH_T,
+    S_POLISH_HALVINGS,
+    S_POLISH_EVALS,
+) = range(20)
+N_SETTINGS = 20
 # Layout of the ``out`` array it fills.
 R_X, R_Y, R_T, R_LAMBDA, R_USED_MAP, R_ITERATIONS, R_EVALUATIONS, R_LAMBDA_SCAN = range(8)
 N_OUT = 8
@@ -129,6 +133,50 @@ def _take(ws, out, lam):
 
 
 @njit(cache=True)
+def _polish(settings, field, meta, pts, n, box, out):
+    """Settle the swarm's match in its basin by a compass search on the fine field with all
+    points (docs/method.md §3): each coordinate in turn is stepped both ways, a step that
+    lowers λ taken; after a sweep with none the steps are halved, and the search ends when
+    the steps halved ``S_POLISH_HALVINGS`` times gain nothing, or after ``S_POLISH_EVALS``
+    evaluations. It stays in the search ``box``, as the swarm does. The swarm finds the
+    basin; its samples leave the last centimetre to chance, which a descent does not."""
+    halvings = int(settings[S_POLISH_HALVINGS])
+    budget = int(settings[S_POLISH_EVALS])
+    kernel = int(settings[S_KERNEL])
+    step_xy = settings[S_POLISH_XY]
+    step_t = settings[S_POLISH_T]
+    best = out[R_LAMBDA]
+    evaluations = 0
+    level = 0
+    while level <= halvings and evaluations < budget:
+        moved = False
+        for d in range(3):
+            step = step_t if d == 2 else step_xy
+            for sign in (1.0, -1.0):
+                moved_to = out[R_X + d] + sign * step
+                if moved_to < box[0, d] or moved_to > box[1, d]:
+                    continue
+                x = moved_to if d == 0 else out[R_X]
+                y = moved_to if d == 1 else out[R_Y]
+                t = moved_to if d == 2 else out[R_T]
+                value = scan_to_scan_error(field, meta, pts, n, 1, x, y, t, kernel)
+                evaluations += 1
+                if value < best:
+                    best = value
+                    out[R_X] = x
+                    out[R_Y] = y
+                    out[R_T] = t
+                    moved = True
+                    break
+        if not moved:
+            step_xy *= 0.5
+            step_t *= 0.5
+            level += 1
+    out[R_LAMBDA] = best
+    out[R_EVALUATIONS] += evaluations
+
+
+@njit(cache=True)
 def _set_box(ws, lo, hi):
     for d in range(3):
         ws.lo[d] = lo[d]
@@ -157,6 +205,7 @@ def align_kernel(
                   settings[S_REFINE_EVALS])
         _take(ws, out, ws.scal[BEST_VAL])
         if out[R_LAMBDA] <= accept:
+            _polish(settings, field, meta, pts, n, box, out)
             out[R_LAMBDA_SCAN] = out[R_LAMBDA]
             return
     # 1. Scan-to-scan over the whole box (Eq. 14), on a stride of the points and, if set up,
@@ -177,6 +226,7 @@ def align_kernel(
         refine = settings[S_REFINE_EVALS]
         _minimise(kind, ws, settings, 0, kernel, pts, n, 1, field, grid, meta, refine)
         _take(ws, out, ws.scal[BEST_VAL])
+    _polish(settings, field, meta, pts, n, box, out)
     out[R_LAMBDA_SCAN] = out[R_LAMBDA]
 
     # 2. Above the rejection threshold, fall back to scan-to-map (Eq. 16) over the same box.
@@ -217,6 +267,9 @@ class ScanMatcher:
         s[S_REFINE_EVALS] = c.refine_evaluations
         s[S_REFINE_X : S_REFINE_T + 1] = c.refine_window
         s[S_COARSE] = 1.0 if c.coarse_resolution > 0 else 0.0
+        s[S_POLISH_XY], s[S_POLISH_T] = c.polish_step
+        s[S_POLISH_HALVINGS] = c.polish_halvings
+        s[S_POLISH_EVALS] = c.polish_evaluations
         self.settings = s
         self._out = np.zeros(N_OUT)
         self._box = np.zeros((2, 3))
@@ -235,16 +288,18 @@ class ScanMatcher:
         self.threshold.restore(state["threshold"])
 
     def set_evaluation_share(self, share: float) -> int:
-        """Scale both stages' evaluation budgets to ``share`` (0–1] of the configured ones: a
+        """Scale the stages' evaluation budgets to ``share`` (0–1] of the configured ones: a
         fixed-rate loop gives the swarm the time a tick has left. Returns the evaluations now
         allowed in all."""
         c = self.config
         share = min(max(share, 0.0), 1.0)
         glob = max(int(c.swarm.max_evaluations * share), 1) if c.swarm.max_evaluations else 0
         refine = int(c.refine_evaluations * share)
+        polish = int(c.polish_evaluations * share)
         self.settings[S_MAX_EVALS] = glob
         self.settings[S_REFINE_EVALS] = refine
-        return glob + refine
+        self.settings[S_POLISH_EVALS] = polish
+        return glob + refine + polish
 
     def new_reference(self) -> ReferenceMaps:
         """A reference buffer of this matcher's capacity (allocate at start-up, then reuse)."""

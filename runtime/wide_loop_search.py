@@ -8,8 +8,10 @@ nothing, or matches the scan to the wrong corridor nearby. Here the scans of the
 (more than ``wide_min_gap`` nodes back, within reach of the estimate) are rendered into a hit
 grid centred on the estimate, and an exhaustive branch and bound (the relocalization's,
 :func:`runtime.place_search.branch_and_bound`) scores the node's scan at every position within
-``wide_radius`` and every heading within ``wide_angle`` of it. The best pose is a *proposal*
-only if
+the window and every heading within ``wide_angle`` of it. The window's half-width grows with
+the path since the last closure with the old map (``wide_drift`` of it, from ``wide_radius``
+up to ``wide_max_radius``): the farther the robot went unanchored, the farther it may have
+drifted. The best pose is a *proposal* only if
 
 * it scores at least ``wide_min_score`` (mean hit value),
 * no distinct pose (farther than ``wide_distinct_distance``) scores ``wide_ratio`` of it — in a
@@ -67,6 +69,15 @@ def nodes_within(poses, n_nodes, x, y, radius, out):
 
 
 @njit(cache=True)
+def path_length(poses, first, last):
+    """The length of the chain of node positions from ``first`` to ``last``."""
+    total = 0.0
+    for k in range(first, last):
+        total += math.hypot(poses[k + 1, 0] - poses[k, 0], poses[k + 1, 1] - poses[k, 1])
+    return total
+
+
+@njit(cache=True)
 def turn_points(points, n, angle, out):
     """``points[:n]`` turned by ``angle`` about the origin, into ``out``."""
     c, s = math.cos(angle), math.sin(angle)
@@ -104,29 +115,27 @@ class WideLoopSearch:
     def __init__(self, config: LoopClosureConfig, max_nodes: int, max_points: int,
                  max_gap: float):
         c = self.config = config
-        res = c.wide_resolution
         self.max_gap = max_gap
         levels = c.wide_levels
-        top = 1 << levels
-        # The grid: the window, the query's reach beyond it and the hit blur, plus one top
-        # block so that a root block starting before the window still lies on the grid.
-        reach = c.wide_radius + c.wide_query_range + 3.0 * c.wide_hit_sigma
-        self.half = int(math.ceil(reach / res)) + top
-        n = 2 * self.half + 1
-        self.cells = int(math.floor(c.wide_radius / res))
-        self._pyramid = np.zeros((levels + 2, n, n), np.uint8)
-        self._d2 = np.zeros((n, n))
-        self.bounds = np.zeros((levels + 1, n, n), np.uint8)
-        self.free = np.zeros((levels + 1, n, n), np.uint8)
+        # Buffers for the widest window (wide_max_radius); each search works on the leading
+        # part its own window needs, viewed as grids of that size (_use).
+        _, n = self._extent(max(c.wide_radius, c.wide_max_radius))
+        self._pyramid_buffer = np.zeros((levels + 2) * n * n, np.uint8)
+        self._d2_buffer = np.zeros(n * n)
+        self._bounds_buffer = np.zeros((levels + 1) * n * n, np.uint8)
+        self._free_buffer = np.zeros((levels + 1) * n * n, np.uint8)
+        self._n = 0
+        self._use(c.wide_radius)
         self.groups = np.ones(levels + 1, np.int64)  # one heading per block at every level
         self.shifts = np.zeros(levels + 1, np.int64)
+        res = c.wide_resolution
         self.step = heading_step(res, c.wide_query_range)
         self.n_headings = 2 * int(math.ceil(c.wide_angle / self.step)) + 1
         self._query = np.zeros((max_points, 2))
         self._recent = PointScan(max_points * c.wide_query_nodes)
         self._turned = np.zeros((c.wide_query_points, 2))
         self._offsets = np.zeros((self.n_headings, c.wide_query_points, 2), np.int64)
-        self._roots = np.zeros((self.n_headings * (-(-n // top)) ** 2, 5), np.int64)
+        self._roots = np.zeros((self.n_headings * (-(-n // (1 << levels))) ** 2, 5), np.int64)
         self._stack = np.zeros((8 * (levels + 2), 5), np.int64)
         self._search_state = np.zeros(SEARCH_STATE, np.int64)
         self._found = np.zeros((2, 4), np.int64)  # the best and one rival are all we need
@@ -145,18 +154,52 @@ class WideLoopSearch:
         self._next = 0  # the slot the next unique best goes to
         self._z = np.zeros(3)  # the proposal's relative pose
 
-    def propose(self, poses, nodes, node: int):
+    def _extent(self, radius: float) -> tuple[int, int]:
+        """The grid a window of ``radius`` needs: its centre cell and side. It holds the
+        window, the query's reach beyond it and the hit blur, plus one top block so that a root
+        block starting before the window still lies on the grid."""
+        c = self.config
+        reach = radius + c.wide_query_range + 3.0 * c.wide_hit_sigma
+        half = int(math.ceil(reach / c.wide_resolution)) + (1 << c.wide_levels)
+        return half, 2 * half + 1
+
+    def _use(self, radius: float) -> None:
+        """Work on a window of ``radius``: views of the leading part of each buffer."""
+        c = self.config
+        self.cells = int(math.floor(radius / c.wide_resolution))
+        half, n = self._extent(radius)
+        if n == self._n:
+            return
+        self.half, self._n = half, n
+        levels = c.wide_levels
+        self._pyramid = self._pyramid_buffer[: (levels + 2) * n * n].reshape(levels + 2, n, n)
+        self._d2 = self._d2_buffer[: n * n].reshape(n, n)
+        self.bounds = self._bounds_buffer[: (levels + 1) * n * n].reshape(levels + 1, n, n)
+        self.free = self._free_buffer[: (levels + 1) * n * n].reshape(levels + 1, n, n)
+
+    def radius(self, poses, since: int, node: int) -> float:
+        """The window's half-width for ``node``: ``wide_drift`` of the path the graph travelled
+        since node ``since`` (the last closure with the old map), within ``wide_radius`` and
+        ``wide_max_radius``. The farther the robot went unanchored, the farther its estimate
+        may have drifted (fr-clinic: 95 m after a 780 m loop in a run that lost it)."""
+        c = self.config
+        wanted = c.wide_drift * path_length(poses, since, node)
+        return min(max(c.wide_radius, wanted), max(c.wide_radius, c.wide_max_radius))
+
+    def propose(self, poses, nodes, node: int, since: int = 0):
         """``(anchor, z)``: the old node nearest to where ``node``'s scan fits, and ``node``'s
         pose in that node's frame — or None (no old node within reach, no pose scoring
         ``wide_min_score``, a rival, the best on the window's edge, or no earlier, separate
-        search finding the same correction)."""
+        search finding the same correction). ``since``: the last node closed with the old
+        map, from which the window's drift is reckoned (:meth:`radius`)."""
         c = self.config
         res = c.wide_resolution
         old = node - c.wide_min_gap
         if old <= 0:
             return None
+        radius = self.radius(poses, since, node)
         x, y, t = float(poses[node, 0]), float(poses[node, 1]), float(poses[node, 2])
-        n_old = nodes_within(poses, old, x, y, c.wide_radius + c.wide_query_range, self._index)
+        n_old = nodes_within(poses, old, x, y, radius + c.wide_query_range, self._index)
         # the query: the node's scan and its predecessors' placed by the graph, a stretch of
         # path whose extent tells one corridor from another where one scan cannot
         recent = nodes.place(poses, range(max(node - c.wide_query_nodes + 1, 0), node + 1),
@@ -166,10 +209,11 @@ class WideLoopSearch:
         if n_old == 0 or n_query < 3:
             return None
         self.searches += 1
+        self._use(radius)
         half = self.half
         ox, oy = x - half * res, y - half * res  # the estimate is cell (half, half)
         render_hits(nodes.points, nodes.counts, poses, self._index, n_old, c.wide_query_range
-                    + c.wide_radius, self.max_gap, ox, oy, res, c.wide_hit_sigma, self._d2,
+                    + radius, self.max_gap, ox, oy, res, c.wide_hit_sigma, self._d2,
                     self._pyramid[0])
         pool_pyramid(self._pyramid)
         pool_bounds(self._pyramid, self.shifts, self.bounds)

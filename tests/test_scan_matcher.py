@@ -3,6 +3,8 @@
 import numpy as np
 import pytest
 
+from runtime.config import SwarmConfig
+from runtime.objectives import KERNELS, scan_to_scan_error
 from runtime.pose import between
 from runtime.scan import PointScan
 from runtime.scan_matcher import MatcherConfig, ScanMatcher
@@ -124,3 +126,43 @@ def test_a_good_prediction_is_matched_by_the_local_stage_alone():
     assert 3 * near_first.evaluations < near_full.evaluations
     # the local stage alone did not fit: the global stage ran too
     assert far_first.evaluations > near_full.evaluations
+
+
+def test_polish_settles_a_short_swarm_in_its_basin():
+    """The compass search (matcher.polish_*) takes a swarm stopped early — its matches tens of
+    millimetres apart from seed to seed — to the one minimum of the fine field, lower in λ,
+    where no step of its finest size lowers λ further."""
+    motion = np.array([0.4, -0.2, 0.15])
+    ref, cur = scans_for(motion)
+    guess = motion + [0.05, -0.05, 0.02]
+    results = {}
+    for budget in (0, 300):
+        results[budget] = []
+        for seed in range(4):
+            config = MatcherConfig(swarm=SwarmConfig(max_evaluations=200), refine_evaluations=0,
+                                   polish_evaluations=budget)
+            m = ScanMatcher(config, seed=seed)
+            results[budget].append(m.align_scans(cur, m.build_reference(ref), guess))
+    rough, polished = results[0], results[300]
+
+    def spread(matches):
+        return max(np.hypot(*(a.pose - b.pose)[:2]) for a in matches for b in matches)
+
+    assert spread(rough) > 0.005
+    assert spread(polished) < 0.0005
+    for r, p in zip(rough, polished):
+        assert p.error <= r.error
+        assert p.evaluations > r.evaluations  # the polish's evaluations are counted
+        e = between(p.pose, motion)
+        assert np.hypot(e[0], e[1]) < 0.005 and abs(e[2]) < 0.002
+    # a polished match is a local minimum: no step of the finest size lowers λ
+    m = ScanMatcher(MatcherConfig(), seed=0)
+    reference = m.build_reference(ref)
+    p = m.align_scans(cur, reference, guess)
+    step_xy, step_t = (s / 2**m.config.polish_halvings for s in m.config.polish_step)
+    for d, step in ((0, step_xy), (1, step_xy), (2, step_t)):
+        for sign in (1, -1):
+            moved = p.pose.copy()
+            moved[d] += sign * step
+            assert scan_to_scan_error(reference.field, reference.meta, cur.buffer, cur.count, 1,
+                                      *moved, KERNELS["cauchy"]) >= p.error

@@ -9,8 +9,11 @@ import numpy as np
 import pytest
 
 from runtime.config import SlamConfig, override
+from runtime.graph_optimizer import GaussNewton
+from runtime.loop_closure import LoopCloser
 from runtime.node_scans import NodeScans
 from runtime.pose import compose, wrap_angle
+from runtime.pose_graph import LOOP, PoseGraph
 from runtime.scan import PointScan
 from runtime.warm_up import room_world, scan_at
 from runtime.wide_loop_search import WideLoopSearch
@@ -114,3 +117,56 @@ def test_a_search_allocates_nothing_after_the_first(building):
         tracemalloc.stop()
     assert wide.proposed >= 3
     assert after - before <= 256 and peak - before < 4096, (after - before, peak - before)
+
+
+def test_the_window_grows_with_the_path_since_the_map_last_held_the_robot(building):
+    """A return drifted farther than ``wide_radius`` lies outside the search's window; with
+    ``wide_drift`` the window grows with the path travelled since the last closure with the
+    old map (up to ``wide_max_radius``) and the return is placed."""
+    world, truth = building
+    poses, nodes = graph_of(world, truth, 12)
+    far = compose([22.0, -12.0, 0.15], DRIFT)  # 27 m off: beyond a 12 m window
+    poses[12:] = compose(far, np.array(truth[12:], np.float64))
+    outcomes = {}
+    for drift in (0.0, 1.0):
+        c = override(CONFIG, {"loop_closure.wide_radius": 12.0,
+                              "loop_closure.wide_max_radius": 40.0,
+                              "loop_closure.wide_drift": drift}).loop_closure
+        wide = WideLoopSearch(c, 64, CONFIG.sensor.max_points, CONFIG.matcher.max_gap)
+        radius = wide.radius(poses, 0, 15)
+        path = sum(math.hypot(*(poses[k + 1, :2] - poses[k, :2])) for k in range(15))
+        assert radius == (12.0 if drift == 0 else min(max(12.0, path), 40.0))
+        assert wide.radius(poses, 15, 15) == 12.0  # just anchored: the least window
+        outcomes[drift] = [wide.propose(poses, nodes, node, 0) for node in (13, 15)]
+    assert outcomes[0.0] == [None, None]
+    assert outcomes[1.0][0] is None and outcomes[1.0][1] is not None
+    anchor, z = outcomes[1.0][1]
+    placed = compose(truth[anchor], z)
+    assert math.hypot(*(placed[:2] - truth[15, :2])) < 0.3
+
+
+def test_a_proposal_is_judged_by_its_own_error_not_by_the_drift_it_repairs():
+    """After a long drift a true closure bends the whole chain: the total χ² rises past
+    ``total_gate`` although the edge itself is absorbed (own χ² near 0). An ordinary closure
+    is refused for that; a wide search's proposal is held to ``wide_total_gate`` (none: its
+    own error alone), so the loop closes (docs/method.md §5, step 4)."""
+    n, step, stretch = 200, 0.5, 1.03  # odometry 3% long: 3 m of drift over 100 m
+    info = np.diag([400.0, 400.0, 2500.0])
+    outcomes = {}
+    for gate in (None, 16.27):
+        c = override(CONFIG, {"loop_closure.wide_total_gate": gate}).loop_closure
+        graph = PoseGraph(n, n + 1)
+        for k in range(n):
+            graph.add_node([k * step * stretch, 0.0, 0.0])
+            if k:
+                graph.add_edge(k - 1, k, [step * stretch, 0.0, 0.0], info)
+        total_before = graph.chi2()
+        edge = graph.add_edge(0, n - 1, [(n - 1) * step, 0.0, 0.0], info, LOOP)
+        GaussNewton(graph).optimize()
+        own, rise = graph.edge_chi2()[edge], graph.chi2() - total_before
+        assert own < 0.1 and rise > c.total_gate  # absorbed, yet the total rose past the gate
+        closer = LoopCloser(c)
+        outcomes[gate] = (closer.consistent(graph, edge, total_before),
+                          closer.consistent(graph, edge, total_before, proposal=True))
+    assert outcomes[None] == (False, True)
+    assert outcomes[16.27] == (False, False)  # a gate set holds proposals to it
