@@ -117,9 +117,10 @@ class WideLoopSearch:
         c = self.config = config
         self.max_gap = max_gap
         levels = c.wide_levels
-        # Buffers for the widest window (wide_max_radius); each search works on the leading
-        # part its own window needs, viewed as grids of that size (_use).
-        _, n = self._extent(max(c.wide_radius, c.wide_max_radius))
+        # Buffers for the widest window; each search works on the leading part its own
+        # window needs, viewed as grids of that size (_use).
+        self.widest = max(c.wide_radius, c.wide_max_radius)
+        _, n = self._extent(self.widest)
         self._pyramid_buffer = np.zeros((levels + 2) * n * n, np.uint8)
         self._d2_buffer = np.zeros(n * n)
         self._bounds_buffer = np.zeros((levels + 1) * n * n, np.uint8)
@@ -184,7 +185,7 @@ class WideLoopSearch:
         may have drifted (fr-clinic: 95 m after a 780 m loop in a run that lost it)."""
         c = self.config
         wanted = c.wide_drift * path_length(poses, since, node)
-        return min(max(c.wide_radius, wanted), max(c.wide_radius, c.wide_max_radius))
+        return min(max(c.wide_radius, wanted), self.widest)
 
     def propose(self, poses, nodes, node: int, since: int = 0):
         """``(anchor, z)``: the old node nearest to where ``node``'s scan fits, and ``node``'s
