@@ -9,7 +9,9 @@ Each new node joins a queue of fixed capacity. Its search then runs as a chain o
 * ``CLOSE``: add the edge, optimise the graph, keep or undo it (the consistency test);
 * ``WIDE``: when the node's candidates gave nothing and no closure with an old node was kept
   for ``wide_after`` nodes, the wide search (:mod:`runtime.wide_loop_search`) over the old nodes'
-  map; its proposal, if any, is aligned and closed as a candidate is.
+  map; its proposal, if any, is aligned and closed as a candidate is. In the budgeted schedule
+  the search is itself a chain of WIDE slices (a part of its grid rendered or pooled, a share
+  of its branch and bound), so that a wide window does not overrun a tick.
 
 ``work(clock, None)`` — the lockstep schedule — runs every pending slice now, so the whole of
 Alg. 7 happens in the tick that added the node. ``work(clock, budget_end)`` runs a slice only
@@ -81,6 +83,7 @@ class BackEnd:
         self.z = np.zeros(3)  # the aligned candidate's measurement, between ALIGN and CLOSE
         self.z_info = np.eye(3)  # and its information
         self.widened = False  # the search under way has gone wide: its candidate is a proposal
+        self._wide_steps = None  # the wide search under way (WideLoopSearch.search), if any
         self.guess = np.zeros(3)  # the proposal: the node's pose in the candidate's frame
         self.last_closure = 0  # the last node closed with an old one (wide_min_gap back)
         self.cost = np.zeros(len(SLICE_NAMES))  # expected seconds per slice kind (decaying max)
@@ -128,7 +131,7 @@ class BackEnd:
                     self.deferred += 1
                     break
                 self.forced += 1
-            self._run_slice(kind)
+            self._run_slice(kind, budget_end is not None)
             self.slices[kind] += 1
             self.waited = 0
             ran += 1
@@ -137,7 +140,9 @@ class BackEnd:
                 self.cost[kind] = max(took, rc.slice_cost_memory * self.cost[kind])
         return ran
 
-    def _run_slice(self, kind: int) -> None:
+    def _run_slice(self, kind: int, sliced: bool = False) -> None:
+        """One slice of ``kind``; ``sliced``: a wide search goes on by one of its own slices
+        rather than to its end (docs/runtime.md §3)."""
         if kind == SELECT:
             cap = self.queue.shape[0]
             self.node = int(self.queue[self.head])
@@ -159,8 +164,17 @@ class BackEnd:
             self._finish()
             return
         if kind == WIDE:
-            proposal = self.wide.propose(self.graph.poses, self.nodes, self.node,
-                                         self.last_closure)
+            if self._wide_steps is None:
+                self._wide_steps = self.wide.search(self.graph.poses, self.nodes, self.node,
+                                                    self.last_closure, sliced)
+            try:
+                next(self._wide_steps)
+                while not sliced:
+                    next(self._wide_steps)
+                return  # the search goes on in the next WIDE slice
+            except StopIteration as stop:
+                proposal = stop.value
+            self._wide_steps = None
             if proposal is None:
                 self._finish()
                 return
@@ -392,6 +406,7 @@ class BackEnd:
         self.wide.restore(state["wide"])
         self.guess[:] = state["guess"]
         self.widened = bool(state["widened"])
+        self._wide_steps = None  # a wide search under way begins again: it keeps no state
         self.last_closure = int(state["last_closure"])
         self.node = node
         (self.phase, self.next_candidate, self.waited, self.enqueued, self.searched,

@@ -374,6 +374,13 @@ class LoopClosureConfig(Section):
         "graph within these", gt=0)
     wide_refine_window: tuple[float, float, float] = _setting(
         (0.3, 0.3, 0.05), "half-widths of the swarm's alignment around a proposal", gt=0)
+    wide_slice_cells: int = _setting(
+        100_000, "grid cells a slice of the wide search renders or pools when the fixed-rate "
+        "runtime spreads it over ticks (docs/runtime.md §3)", ge=1)
+    wide_slice_nodes: int = _setting(
+        100, "old node scans a slice of the wide search splats into its grid", ge=1)
+    wide_slice_blocks: int = _setting(
+        5000, "branch-and-bound blocks a slice of the wide search scores", ge=1)
 
 
 @dataclass(frozen=True)

@@ -45,16 +45,37 @@ C_SCORE, C_LEVEL, C_HEADING, C_ROW, C_COL = range(5)
 def render_hits(points, counts, poses, index, n_index, max_range, max_gap, ox, oy, res, sigma,
                 d2, hits):
     """The hit grid of the scans of nodes ``index[:n_index]`` placed at ``poses`` (``d2``:
-    scratch of its shape); the grid's cell ``(i, j)`` is the point ``(ox, oy) + (j, i)·res``."""
-    ny, nx = hits.shape
+    scratch of its shape); the grid's cell ``(i, j)`` is the point ``(ox, oy) + (j, i)·res``.
+    Its three passes may also be run a part at a time (rows, nodes), as the wide loop search
+    does; the grid is the same."""
+    ny = hits.shape[0]
+    clear_distances(d2, sigma, 0, ny)
+    splat_scans(points, counts, poses, index, 0, n_index, max_range, max_gap, ox, oy, res,
+                sigma, d2)
+    hits_from_distances(d2, sigma, hits, 0, ny)
+
+
+@njit(cache=True)
+def clear_distances(d2, sigma, first, last):
+    """Rows ``first:last`` of ``d2`` set to the splat's reach squared (nothing near)."""
     radius = 3.0 * sigma
     r2 = radius * radius
-    for i in range(ny):
-        for j in range(nx):
+    for i in range(first, last):
+        for j in range(d2.shape[1]):
             d2[i, j] = r2
+
+
+@njit(cache=True)
+def splat_scans(points, counts, poses, index, first, last, max_range, max_gap, ox, oy, res,
+                sigma, d2):
+    """The scans of nodes ``index[first:last]`` splatted into ``d2`` (each cell the least
+    squared distance to a surface, within ``3·sigma``); points beyond ``max_range`` of their
+    node are left out, consecutive points closer than ``max_gap`` joined."""
+    ny, nx = d2.shape
+    radius = 3.0 * sigma
     gap2 = max_gap * max_gap
     reach2 = max_range * max_range
-    for e in range(n_index):
+    for e in range(first, last):
         m = index[e]
         c, s = math.cos(poses[m, 2]), math.sin(poses[m, 2])
         n = counts[m]
@@ -72,9 +93,17 @@ def render_hits(points, counts, poses, index, n_index, max_range, max_gap, ox, o
             bx = poses[m, 0] + c * qx - s * qy - ox
             by = poses[m, 1] + s * qx + c * qy - oy
             splat_segment(ax, ay, bx, by, 0.0, 0.0, res, radius, nx, ny, d2)
+
+
+@njit(cache=True)
+def hits_from_distances(d2, sigma, hits, first, last):
+    """Rows ``first:last`` of the hit grid from the squared distances: 255·exp(−d²/2σ²), 0
+    beyond the splat's reach."""
+    radius = 3.0 * sigma
+    r2 = radius * radius
     inv = 1.0 / (2.0 * sigma * sigma)
-    for i in range(ny):
-        for j in range(nx):
+    for i in range(first, last):
+        for j in range(d2.shape[1]):
             v = d2[i, j]
             hits[i, j] = 0 if v >= r2 else int(HIT_MAX * math.exp(-v * inv) + 0.5)
 
@@ -82,19 +111,26 @@ def render_hits(points, counts, poses, index, n_index, max_range, max_gap, ox, o
 @njit(cache=True)
 def pool_pyramid(levels):
     """Level ``h`` from level ``h − 1``: the largest value of each ``2ʰ × 2ʰ`` block."""
-    n_levels, ny, nx = levels.shape
-    for h in range(1, n_levels):
-        half = 1 << (h - 1)
-        for i in range(ny):
-            for j in range(nx):
-                v = levels[h - 1, i, j]
+    for h in range(1, levels.shape[0]):
+        pool_level(levels, h, 0, levels.shape[1])
+
+
+@njit(cache=True)
+def pool_level(levels, h, first, last):
+    """Rows ``first:last`` of level ``h`` of the pyramid (:func:`pool_pyramid`); level
+    ``h − 1`` must be whole."""
+    ny, nx = levels.shape[1], levels.shape[2]
+    half = 1 << (h - 1)
+    for i in range(first, last):
+        for j in range(nx):
+            v = levels[h - 1, i, j]
+            if j + half < nx:
+                v = max(v, levels[h - 1, i, j + half])
+            if i + half < ny:
+                v = max(v, levels[h - 1, i + half, j])
                 if j + half < nx:
-                    v = max(v, levels[h - 1, i, j + half])
-                if i + half < ny:
-                    v = max(v, levels[h - 1, i + half, j])
-                    if j + half < nx:
-                        v = max(v, levels[h - 1, i + half, j + half])
-                levels[h, i, j] = v
+                    v = max(v, levels[h - 1, i + half, j + half])
+            levels[h, i, j] = v
 
 
 def bound_shift(group: int) -> int:
@@ -110,23 +146,30 @@ def pool_bounds(pyramid, shifts, bounds):
     there, ``w = 2ʰ + 2·shifts[h]`` (level 0: the hit grid itself) — the reach of a level-``h``
     search block's points over its heading group and ``2ʰ × 2ʰ`` positions. Two overlapping
     power-of-two blocks of ``pyramid`` per side cover the block exactly."""
-    n_levels, ny, nx = bounds.shape
-    for h in range(n_levels):
-        w = (1 << h) + 2 * shifts[h]
-        p = 0
-        while (2 << p) <= w:
-            p += 1
-        far = w - (1 << p)
-        for i in range(ny):
-            for j in range(nx):
-                v = pyramid[p, i, j]
+    for h in range(bounds.shape[0]):
+        pool_bound_level(pyramid, shifts, bounds, h, 0, bounds.shape[1])
+
+
+@njit(cache=True)
+def pool_bound_level(pyramid, shifts, bounds, h, first, last):
+    """Rows ``first:last`` of ``bounds[h]`` (:func:`pool_bounds`); ``pyramid`` must be
+    whole."""
+    ny, nx = bounds.shape[1], bounds.shape[2]
+    w = (1 << h) + 2 * shifts[h]
+    p = 0
+    while (2 << p) <= w:
+        p += 1
+    far = w - (1 << p)
+    for i in range(first, last):
+        for j in range(nx):
+            v = pyramid[p, i, j]
+            if j + far < nx:
+                v = max(v, pyramid[p, i, j + far])
+            if i + far < ny:
+                v = max(v, pyramid[p, i + far, j])
                 if j + far < nx:
-                    v = max(v, pyramid[p, i, j + far])
-                if i + far < ny:
-                    v = max(v, pyramid[p, i + far, j])
-                    if j + far < nx:
-                        v = max(v, pyramid[p, i + far, j + far])
-                bounds[h, i, j] = v
+                    v = max(v, pyramid[p, i + far, j + far])
+            bounds[h, i, j] = v
 
 
 @njit(cache=True)

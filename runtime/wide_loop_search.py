@@ -45,11 +45,13 @@ from runtime.place_search import (
     UNLIMITED,
     branch_and_bound,
     heading_step,
-    pool_bounds,
-    pool_pyramid,
-    render_hits,
+    clear_distances,
+    hits_from_distances,
+    pool_bound_level,
+    pool_level,
     rotate_query,
     select_query,
+    splat_scans,
 )
 from runtime.pose import between_nb, compose_nb, wrap_angle_nb
 from runtime.scan import PointScan
@@ -88,13 +90,19 @@ def turn_points(points, n, angle, out):
 
 
 @njit(cache=True)
-def open_window(free, half, cells):
-    """Level 0 of ``free``: 1 on the ``(2·cells + 1)²`` positions centred on cell
-    ``(half, half)``, 0 elsewhere."""
-    ny, nx = free.shape[1], free.shape[2]
-    for i in range(ny):
-        for j in range(nx):
-            free[0, i, j] = 1 if abs(i - half) <= cells and abs(j - half) <= cells else 0
+def open_window(free, half, cells, first, last):
+    """Rows ``first:last`` of every level of ``free``: level 0 is 1 on the ``(2·cells + 1)²``
+    positions centred on cell ``(half, half)`` and 0 elsewhere; level ``h`` at ``(i, j)`` is 1
+    where the ``2ʰ × 2ʰ`` block starting there meets the window (what pooling level 0 gives,
+    the window lying inside the grid)."""
+    nx = free.shape[2]
+    low, high = half - cells, half + cells
+    for h in range(free.shape[0]):
+        w = (1 << h) - 1
+        for i in range(first, last):
+            row = i <= high and i + w >= low
+            for j in range(nx):
+                free[h, i, j] = 1 if row and j <= high and j + w >= low else 0
 
 
 @njit(cache=True)
@@ -193,6 +201,20 @@ class WideLoopSearch:
         ``wide_min_score``, a rival, the best on the window's edge, or no earlier, separate
         search finding the same correction). ``since``: the last node closed with the old
         map, from which the window's drift is reckoned (:meth:`radius`)."""
+        steps = self.search(poses, nodes, node, since)
+        while True:
+            try:
+                next(steps)
+            except StopIteration as stop:
+                return stop.value
+
+    def search(self, poses, nodes, node: int, since: int = 0, sliced: bool = False):
+        """:meth:`propose` as a generator that yields between slices and returns the proposal.
+        ``sliced``: each slice renders or pools about ``wide_slice_cells`` cells, splats
+        ``wide_slice_nodes`` node scans or scores ``wide_slice_blocks`` branch-and-bound blocks,
+        so that the fixed-rate runtime can spread a search over ticks (docs/runtime.md §3);
+        otherwise each pass is one slice. Either way the proposal is the same. ``poses`` and
+        the nodes' scans must stay as they are until it returns."""
         c = self.config
         res = c.wide_resolution
         old = node - c.wide_min_gap
@@ -209,27 +231,50 @@ class WideLoopSearch:
                                c.wide_query_points, self._query)
         if n_old == 0 or n_query < 3:
             return None
-        self.searches += 1
         self._use(radius)
-        half = self.half
+        half, n, sigma = self.half, self._n, c.wide_hit_sigma
+        rows = max(c.wide_slice_cells // n, 1) if sliced else n
         ox, oy = x - half * res, y - half * res  # the estimate is cell (half, half)
-        render_hits(nodes.points, nodes.counts, poses, self._index, n_old, c.wide_query_range
-                    + radius, self.max_gap, ox, oy, res, c.wide_hit_sigma, self._d2,
-                    self._pyramid[0])
-        pool_pyramid(self._pyramid)
-        pool_bounds(self._pyramid, self.shifts, self.bounds)
-        open_window(self.free, half, self.cells)
-        pool_pyramid(self.free)
-        first = t - c.wide_angle  # heading a is first + a·step
-        turn_points(self._query, n_query, first, self._turned)
+        # the old nodes' hit grid, its pyramid and the bounds on it, the window's levels
+        for first in range(0, n, rows):
+            clear_distances(self._d2, sigma, first, min(first + rows, n))
+            yield
+        per_slice = c.wide_slice_nodes if sliced else n_old
+        for first in range(0, n_old, per_slice):
+            splat_scans(nodes.points, nodes.counts, poses, self._index, first,
+                        min(first + per_slice, n_old), c.wide_query_range + radius,
+                        self.max_gap, ox, oy, res, sigma, self._d2)
+            yield
+        for first in range(0, n, rows):
+            hits_from_distances(self._d2, sigma, self._pyramid[0], first, min(first + rows, n))
+            yield
+        for h in range(1, self._pyramid.shape[0]):
+            for first in range(0, n, rows):
+                pool_level(self._pyramid, h, first, min(first + rows, n))
+                yield
+        for h in range(self.bounds.shape[0]):
+            for first in range(0, n, rows):
+                pool_bound_level(self._pyramid, self.shifts, self.bounds, h, first,
+                                 min(first + rows, n))
+                yield
+        for first in range(0, n, rows):
+            open_window(self.free, half, self.cells, first, min(first + rows, n))
+            yield
+        start = t - c.wide_angle  # heading a is start + a·step
+        turn_points(self._query, n_query, start, self._turned)
         rotate_query(self._turned, n_query, res, self.step, self.n_headings, self._offsets)
         min_score = int(math.ceil(c.wide_min_score * HIT_MAX * n_query))
         self._search_state[S_PHASE] = 0
-        n_found, _, _ = branch_and_bound(self.bounds, self.shifts, self.groups, self.free,
-                                         self._offsets, n_query, self.n_headings, min_score,
-                                         c.wide_ratio, self.cell_radius, self.n_headings,
-                                         self._roots, self._stack, self._found,
-                                         self._search_state, UNLIMITED)
+        while True:
+            n_found, _, done = branch_and_bound(
+                self.bounds, self.shifts, self.groups, self.free, self._offsets, n_query,
+                self.n_headings, min_score, c.wide_ratio, self.cell_radius, self.n_headings,
+                self._roots, self._stack, self._found, self._search_state,
+                c.wide_slice_blocks if sliced else UNLIMITED)
+            if done:
+                break
+            yield
+        self.searches += 1
         if n_found == 0:
             return None
         if n_found > 1:
@@ -240,7 +285,7 @@ class WideLoopSearch:
                 or abs(j - half) >= self.cells):
             self.at_edge += 1
             return None
-        bx, by, bt = ox + j * res, oy + i * res, first + a * self.step
+        bx, by, bt = ox + j * res, oy + i * res, start + a * self.step
         agrees = self._agrees(node, x, y, t, bx, by, bt)
         # the correction C with C ⊕ estimate = best: best ⊕ estimate⁻¹
         k = self._next

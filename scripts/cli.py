@@ -119,7 +119,7 @@ def _bench_runtime(args) -> int:
         bench_runtime(find_datasets(args.data), args.optimizer, args.realtime_minutes,
                       args.traced_ticks, args.limit, args.json,
                       config=_config(args, DEFAULT_PRESET), plots=args.plots,
-                      view_scans=args.view_scans)
+                      view_scans=args.view_scans, log=args.log, seed=args.seed)
     if args.json:
         print(f"wrote {args.json}")
     return 0
@@ -544,6 +544,9 @@ def build_parser() -> argparse.ArgumentParser:
     rt = bsub.add_parser("runtime", help="the fixed-rate runtime on Intel: latency, misses, "
                                           "memory, accuracy; or --soak on simulated scans")
     rt.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
+    rt.add_argument("--log", default="intel", choices=("intel", "aces", "fr-clinic"),
+                    help="the radish log replayed (default: intel)")
+    rt.add_argument("--seed", type=_whole, default=0, help="the max-speed pass's seed")
     rt.add_argument("--optimizer", default="abc", choices=OPTIMIZERS)
     rt.add_argument("--realtime-minutes", type=_non_negative, default=2.0,
                     help="minutes of the log replayed at its recorded rate (0: skip; 45: all)")

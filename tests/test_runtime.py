@@ -166,6 +166,30 @@ def test_a_full_loop_queue_drops_the_oldest_search_and_says_so():
     assert "loop queue full" in runtime.status
 
 
+def test_a_wide_loop_search_is_spread_over_slices_in_the_budgeted_schedule():
+    """Budgeted, a wide search runs as many WIDE slices (docs/runtime.md §3), each a part of
+    its grid or of its branch and bound, and every search still ends; in lockstep it is one."""
+    angles, records = recorded_drive(160)
+    wide = {"loop_closure.wide_after": 1, "loop_closure.wide_min_gap": 1,
+            "loop_closure.wide_radius": 4.0, "loop_closure.wide_slice_cells": 500,
+            "loop_closure.wide_slice_blocks": 20}
+    counts = {}
+    for schedule in ("lockstep", "budgeted"):
+        runtime = SlamRuntime(override(with_runtime(QUICK, schedule=schedule), wide), seed=2)
+        feed(runtime, angles, records)
+        runtime.drain()
+        back = runtime.slam.back_end
+        counts[schedule] = (int(back.slices[3]), back.wide.searches)
+        report = runtime.report()["loop_searches"]
+        assert report["pending"] == 0 and report["done"] == report["enqueued"]
+        assert back.wide.searches > 0 and runtime.slam.loops_closed > 0
+    slices, searches = counts["lockstep"]
+    # one slice per search (one that finds no old node within reach ends before rendering)
+    assert searches <= slices <= 1.1 * searches + 1, counts
+    slices, searches = counts["budgeted"]
+    assert slices > 10 * searches, counts
+
+
 # ---------------------------------------------------------------------- sessions
 RUN_AND_DIE = textwrap.dedent(
     """

@@ -13,10 +13,11 @@ from runtime.graph_optimizer import GaussNewton
 from runtime.loop_closure import LoopCloser
 from runtime.node_scans import NodeScans
 from runtime.pose import compose, wrap_angle
+from runtime.place_search import pool_pyramid
 from runtime.pose_graph import LOOP, PoseGraph
 from runtime.scan import PointScan
 from runtime.warm_up import room_world, scan_at
-from runtime.wide_loop_search import WideLoopSearch
+from runtime.wide_loop_search import WideLoopSearch, open_window
 
 ANGLES = np.linspace(-np.pi, np.pi, 360, endpoint=False)
 # queries of two node scans (a search's separate second look is two or more nodes back), on
@@ -117,6 +118,52 @@ def test_a_search_allocates_nothing_after_the_first(building):
         tracemalloc.stop()
     assert wide.proposed >= 3
     assert after - before <= 256 and peak - before < 4096, (after - before, peak - before)
+
+
+def test_a_search_in_slices_proposes_what_one_pass_does(building):
+    """Sliced (a few rows, nodes or blocks at a time, as the fixed-rate runtime runs it) the
+    search takes many slices and ends with the same proposals, grids and counts."""
+    world, truth = building
+    poses, nodes = graph_of(world, truth, 12)
+    tiny = override(CONFIG, {"loop_closure.wide_slice_cells": 2000,
+                             "loop_closure.wide_slice_nodes": 3,
+                             "loop_closure.wide_slice_blocks": 50}).loop_closure
+    runs = {}
+    for sliced in (False, True):
+        wide = WideLoopSearch(tiny, 64, CONFIG.sensor.max_points, CONFIG.matcher.max_gap)
+        slices, found = [], []
+        for node in (13, 15, 16):
+            steps, count = wide.search(poses, nodes, node, 0, sliced), 0
+            while True:
+                try:
+                    next(steps)
+                    count += 1
+                except StopIteration as stop:
+                    found.append(None if stop.value is None
+                                 else (stop.value[0], stop.value[1].copy()))
+                    break
+            slices.append(count)
+        runs[sliced] = (slices, found, wide.counts(), wide.bounds.copy(), wide.free.copy())
+    (one_pass, found, counts, bounds, free), (many, found_sliced, counts_sliced, bounds_sliced,
+                                               free_sliced) = runs[False], runs[True]
+    assert min(many) > 3 * max(one_pass), (one_pass, many)
+    assert counts == counts_sliced and counts["proposed"] == 2
+    for a, b in zip(found, found_sliced):
+        assert (a is None and b is None) or (a[0] == b[0] and np.array_equal(a[1], b[1]))
+    assert np.array_equal(bounds, bounds_sliced) and np.array_equal(free, free_sliced)
+
+
+def test_the_window_s_levels_are_its_pooled_blocks():
+    """``open_window`` writes every level at once; each is level 0 pooled (docs/method.md §5)."""
+    levels, n, half, cells = 4, 61, 30, 9
+    free = np.zeros((levels + 1, n, n), np.uint8)
+    for first in range(0, n, 7):  # in row blocks, as a sliced search writes it
+        open_window(free, half, cells, first, min(first + 7, n))
+    pooled = np.zeros_like(free)
+    pooled[0, half - cells: half + cells + 1, half - cells: half + cells + 1] = 1
+    pool_pyramid(pooled)
+    assert np.array_equal(free, pooled)
+    assert free[0].sum() == (2 * cells + 1) ** 2
 
 
 def test_the_window_grows_with_the_path_since_the_map_last_held_the_robot(building):

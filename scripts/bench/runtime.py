@@ -1,6 +1,7 @@
-"""``swarmslam bench runtime``: the fixed-rate runtime on the Intel raw log, and a soak run.
+"""``swarmslam bench runtime``: the fixed-rate runtime on a raw log, and a soak run.
 
-Three passes over ``radish/intel.clf.gz`` (one core, budgeted schedule unless said):
+Three passes over ``radish/intel.clf.gz`` (``--log`` another of the radish logs; one core,
+budgeted schedule unless said):
 
 1. *max speed*: every scan, one tick each, back to back — per-tick latency median/p99/max,
    deadline misses at 10 Hz, peak RSS and RSS growth after warm-up, accuracy against the
@@ -63,8 +64,8 @@ def robot_frame_scans(log):
     return out
 
 
-def max_speed(scans, relations, config, echo) -> dict:
-    runtime = SlamRuntime(config)
+def max_speed(scans, relations, config, echo, seed: int = 0) -> dict:
+    runtime = SlamRuntime(config, seed=seed)
     runtime_config = config.runtime
     warm = runtime.warm_up()
     latency = np.zeros(len(scans))
@@ -216,14 +217,15 @@ def view_overhead(scans, config, n: int) -> tuple[dict, dict]:
 
 def bench_runtime(data_dir: Path, optimizer="abc", realtime_minutes=2.0, traced_ticks=6000,
                   limit=None, json_path=None, echo=print, config=None, plots=None,
-                  view_scans: int = 4000) -> dict:
+                  view_scans: int = 4000, log: str = "intel", seed: int = 0) -> dict:
     """``config``: the SLAM's configuration (default: the defaults), run budgeted.
     ``view_scans``: scans ticked with and without a view (0: skip); ``plots``: a folder for
-    the latency histograms (PNG)."""
+    the latency histograms (PNG); ``log``: the radish log's name; ``seed``: the max-speed
+    pass's and the unsliced replay's."""
     if plots:
         require_matplotlib()
-    log_path = require(Path(data_dir) / "radish" / "intel.clf.gz")
-    rel_path = require(Path(data_dir) / "radish" / "intel.relations")
+    log_path = require(Path(data_dir) / "radish" / f"{log}.clf.gz")
+    rel_path = require(Path(data_dir) / "radish" / f"{log}.relations")
     log = read_carmen(log_path)
     if limit:
         log.lasers = log.lasers[:limit]
@@ -233,12 +235,12 @@ def bench_runtime(data_dir: Path, optimizer="abc", realtime_minutes=2.0, traced_
                                                "runtime.schedule": "budgeted",
                                      "capacity.max_scans": len(scans) + 1})
     rc = config.runtime
-    result = {"benchmark": "runtime", "log": str(log_path), "optimizer": optimizer,
+    result = {"benchmark": "runtime", "log": str(log_path), "optimizer": optimizer, "seed": seed,
               "runtime_config": {"rate_hz": rc.rate_hz, "tick_budget_s": rc.tick_budget}}
-    result["max_speed"], latency = max_speed(scans, relations, config, echo)
+    result["max_speed"], latency = max_speed(scans, relations, config, echo, seed)
     latencies = {"max speed": latency}
-    unsliced = replay(log_path, rel_path, optimizer, True, None, limit, label="unsliced",
-                      config=config)
+    unsliced = replay(log_path, rel_path, optimizer, True, None, limit, seed=seed,
+                      label="unsliced", config=config)
     result["unsliced"] = {k: unsliced[k] for k in ("eT", "eT_std", "eR_deg", "eR_std",
                                                    "loops_accepted", "latency_ms_p99")}
     result["traced"] = traced(scans, config, traced_ticks)
@@ -261,7 +263,8 @@ def bench_runtime(data_dir: Path, optimizer="abc", realtime_minutes=2.0, traced_
 def format_runtime(r) -> str:
     f, u, t = r["max_speed"], r["unsliced"], r["traced"]
     lines = [
-        f"Intel through the fixed-rate runtime ({r['optimizer']}, 10 Hz, tick budget "
+        f"{Path(r['log']).name} through the fixed-rate runtime ({r['optimizer']}, seed "
+        f"{r.get('seed', 0)}, 10 Hz, tick budget "
         f"{1e3 * r['runtime_config']['tick_budget_s']:.0f} ms)",
         f"  max speed: {f['scans']} scans in {f['wall_seconds']:.1f} s "
         f"({f['real_time_factor']:.1f}x real time)",
@@ -269,6 +272,9 @@ def format_runtime(r) -> str:
         f"max {f['latency_ms_max']:.1f}   (target p99 <= 20)",
         f"    deadline misses at 10 Hz: {f['deadline_misses_10hz']}   (target 0); over the "
         f"{1e3 * r['runtime_config']['tick_budget_s']:.0f} ms budget: {f['over_budget_ticks']}",
+        f"    loop searches: {f['runtime']['loop_searches']['done']} done, "
+        f"{f['runtime']['loop_searches']['dropped']} dropped from a full queue; back-end "
+        f"slices {f['runtime']['back_end_slices']}, forced {f['runtime']['forced_slices']}",
         f"    RSS: peak {f['rss_mib_peak']:.1f} MiB ({f['rss_mib_committed_at_start']:.0f} MiB of "
         f"capacity committed at start-up), growth after warm-up "
         f"{f['rss_mib_growth_after_warm_up']:.2f} MiB   (target <= 1 MB)",
