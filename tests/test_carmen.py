@@ -1,9 +1,10 @@
 import gzip
+import math
 
 import numpy as np
 import pytest
 
-from scripts.carmen import CarmenFormatError, read_carmen
+from scripts.carmen import CarmenFormatError, odometry_at_scans, read_carmen, regular_stream
 
 FLASER = "FLASER 4 1.0 2.0 50.0 0.5 0.1 0.2 0.3 0.1 0.2 0.3 {t} host {t}\n"
 ODOM = "ODOM 1.0 2.0 0.5 0.0 0.0 0.0 {t} host {t}\n"
@@ -62,3 +63,48 @@ def test_missing_and_empty_logs(tmp_path):
         read_carmen(tmp_path / "nope.clf")
     with pytest.raises(CarmenFormatError, match="no laser scans"):
         read_carmen(write(tmp_path, ODOM.format(t=1.0)))
+
+
+def odom(x, theta, t):
+    return f"ODOM {x} 0.0 {theta} 0.0 0.0 0.0 {t} host {t}\n"
+
+
+def flaser(odometry, t):
+    x, theta = odometry
+    return f"FLASER 4 1.0 2.0 3.0 4.0 {x} 0.0 {theta} {x} 0.0 {theta} {t} host {t}\n"
+
+
+def test_a_flaser_scan_takes_the_odometry_of_its_own_time_from_a_steady_stream(tmp_path):
+    """A FLASER line carries the last ODOM the logger had (stale while the robot turns); from
+    a steady ODOM stream the scan's odometry is interpolated at its own timestamp, across
+    the ±π seam too. Scans at an ODOM record's time, outside the stream, or read without
+    synchronising keep the line's."""
+    text = ""
+    for k in range(6):  # 10 Hz, 0.1 m and 0.2 rad per record, from theta 2.9 (past pi)
+        text += odom(0.1 * k, math.remainder(2.9 + 0.2 * k, 2 * math.pi), 0.1 * k)
+    text += flaser((0.1, 3.1), 0.175)  # stale: the record of t = 0.1
+    text += flaser((0.2, 3.0), 0.2)  # at a record's time, the record's odometry exactly
+    text += flaser((0.5, 9.0), 0.7)  # after the stream's end: its own
+    path = write(tmp_path, text)
+    log = read_carmen(path)
+    between_records, at_record, after = (r.odometry for r in log.lasers)
+    assert np.allclose(between_records[:2], [0.175, 0.0])
+    assert math.isclose(math.remainder(between_records[2] - (2.9 + 0.2 * 1.75), 2 * math.pi),
+                        0.0, abs_tol=1e-12)
+    assert np.array_equal(at_record, [0.2, 0.0, math.remainder(2.9 + 0.4, 2 * math.pi)])
+    assert np.array_equal(after, [0.5, 0.0, 9.0])
+    stale = read_carmen(path, synchronise=False).lasers[0].odometry
+    assert np.array_equal(stale, [0.1, 0.0, 3.1])
+
+
+def test_a_bursty_odometry_stream_is_not_interpolated(tmp_path):
+    """ODOM records that reach the logger in bursts (Intel's) carry arrival times, not
+    measurement times: the lines' own odometry is kept."""
+    assert regular_stream([0.0, 0.1, 0.2, 0.3]) and not regular_stream([0.0, 0.1])
+    times = [0.0, 0.001, 0.002, 0.5, 0.501, 0.502, 1.0, 1.001, 1.002]
+    assert not regular_stream(times)
+    text = "".join(odom(0.1 * k, 0.0, t) for k, t in enumerate(times))
+    text += flaser((0.2, 0.0), 0.25)
+    assert odometry_at_scans(read_carmen(write(tmp_path, text), synchronise=False).lasers,
+                             read_carmen(write(tmp_path, text)).odometry) == 0
+    assert np.array_equal(read_carmen(write(tmp_path, text)).lasers[0].odometry, [0.2, 0.0, 0.0])
