@@ -65,6 +65,11 @@ def integrate_scan(logodds, region, origin_x, origin_y, res, pose, pts, n, max_r
     return newly_known
 
 
+def probability(logodds) -> np.ndarray:
+    """Occupancy probabilities of log-odds cells (0.5 where nothing was seen)."""
+    return 1.0 - 1.0 / (1.0 + np.exp(np.asarray(logodds).astype(np.float64)))
+
+
 class OccupancyGrid:
     """A log-odds grid; row 0 is the lowest y (``origin`` is its lower-left corner, metres)."""
 
@@ -103,7 +108,7 @@ class OccupancyGrid:
                               max_range)
 
     def probability(self) -> np.ndarray:
-        return 1.0 - 1.0 / (1.0 + np.exp(self.logodds.astype(np.float64)))
+        return probability(self.logodds)
 
     def known(self) -> np.ndarray:
         return self.logodds != 0.0

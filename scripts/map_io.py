@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.occupancy_grid import OccupancyGrid
+from runtime.occupancy_grid import OccupancyGrid, probability
 from runtime.writers import write_bytes_atomic, write_text_atomic
 from scripts.png import write_png
 
@@ -19,12 +19,18 @@ FREE_THRESH = 0.196
 
 
 def trinary_image(grid: OccupancyGrid) -> np.ndarray:
-    p = grid.probability()
+    """The grid in map_saver's trinary values, row 0 at the top."""
+    return trinary_values(grid.logodds)[::-1]
+
+
+def trinary_values(logodds) -> np.ndarray:
+    """map_saver's trinary values of log-odds cells (any block of the grid's rows)."""
+    p = probability(logodds)
     img = np.full(p.shape, 205, np.uint8)
-    known = grid.known()
+    known = logodds != 0.0
     img[known & (p > OCCUPIED_THRESH)] = 0
     img[known & (p < FREE_THRESH)] = 254
-    return img[::-1]  # row 0 = top
+    return img
 
 
 def encode_pgm(image: np.ndarray) -> bytes:

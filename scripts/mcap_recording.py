@@ -27,7 +27,6 @@ import numpy as np
 from mcap.writer import Writer
 
 from runtime.writers import AtomicFile
-from scripts.map_painter import occupancy_percent
 
 _TIME = {"type": "object", "properties": {"sec": {"type": "integer", "minimum": 0},
                                           "nsec": {"type": "integer", "minimum": 0}}}
@@ -139,8 +138,8 @@ class McapRecording:
                                     if math.isfinite(f.rejection_threshold) else None),
             "node_added": f.node_added, "loop_closed": f.loop_closed})
 
-    def map(self, tick: int, stamp: float, grid, slam) -> None:
-        cells = occupancy_percent(grid)
+    def map(self, tick: int, stamp: float, painted, slam) -> None:
+        grid, cells = painted.grid, painted.percent
         h, w = cells.shape
         self._write("/map", stamp, {
             "timestamp": _time(stamp), "frame_id": "map",

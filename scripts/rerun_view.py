@@ -25,7 +25,6 @@ import rerun as rr
 from runtime.pose import compose
 from runtime.pose_graph import ODOMETRY
 from runtime.writers import AtomicFile
-from scripts.map_io import trinary_image
 from scripts.map_painter import map_nodes
 
 APP = "swarmslam"
@@ -97,11 +96,13 @@ class RerunView:
                 rec.log("stats/pose_error_m",
                         rr.Scalars(float(np.hypot(*(f.pose[:2] - f.truth[:2])))))
 
-    def map(self, tick: int, stamp: float, grid, slam) -> None:
-        """The redrawn map, the graph and the trajectories (each redraw, not each tick)."""
+    def map(self, tick: int, stamp: float, painted, slam) -> None:
+        """The redrawn map (a :class:`scripts.map_painter.PaintedMap`), the graph and the
+        trajectories (each redraw, not each tick)."""
         rec = self.rec
         self._time(tick, stamp)
-        image = trinary_image(grid)[::-1]  # row 0 at the lowest y: GridMap's lower-left origin
+        grid = painted.grid
+        image = painted.trinary  # row 0 at the lowest y: GridMap's lower-left origin
         h, w = image.shape
         rec.log("world/map", rr.GridMap(
             data=np.ascontiguousarray(image).tobytes(),

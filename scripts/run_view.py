@@ -103,15 +103,15 @@ class RunWatch:
             self._open(runtime.config)
         self.ticks += 1
         due = frame.stamp - self._refreshed >= self.refresh_seconds
-        grid = None
+        painted = None
         if due or self.painter.busy:
-            grid = self.painter.paint(runtime.slam)  # a new pass starts if the graph changed
+            painted = self.painter.paint(runtime.slam)  # a new pass starts if the graph changed
             if due:
                 self._refreshed = frame.stamp
         for sink in self.sinks:
             sink.frame(self.ticks, frame)
-            if grid is not None:
-                sink.map(self.ticks, frame.stamp, grid, runtime.slam)
+            if painted is not None:
+                sink.map(self.ticks, frame.stamp, painted, runtime.slam)
             elif due and hasattr(sink, "trajectory"):  # paths move without a redraw too
                 sink.trajectory(self.ticks, frame.stamp, runtime.slam)
 

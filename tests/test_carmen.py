@@ -4,7 +4,12 @@ import math
 import numpy as np
 import pytest
 
-from scripts.carmen import CarmenFormatError, odometry_at_scans, read_carmen, regular_stream
+from scripts.carmen import (
+    CarmenFormatError,
+    odometry_at_scans,
+    read_carmen,
+    regular_stream,
+)
 
 FLASER = "FLASER 4 1.0 2.0 50.0 0.5 0.1 0.2 0.3 0.1 0.2 0.3 {t} host {t}\n"
 ODOM = "ODOM 1.0 2.0 0.5 0.0 0.0 0.0 {t} host {t}\n"

@@ -207,3 +207,44 @@ def test_the_base_install_needs_none_of_the_extras():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout
     assert out.strip() == "[]"
+
+
+def test_a_redraw_is_handed_over_whole_after_its_cells_are_converted_a_few_rows_at_a_time():
+    """The painter draws a few node scans per call, then converts a few rows of cells per
+    call; the finished map equals the whole grid converted at once (the map file's values,
+    the ROS percentages), and a graph that did not change is not redrawn."""
+    from runtime.warm_up import room_world, scan_at
+    from scripts.map_io import trinary_image
+    from scripts.map_painter import MapPainter, occupancy_percent
+
+    class Graph:  # what the painter reads of a SLAM run
+        def __init__(self, poses, nodes):
+            self.graph = type("G", (), {"poses": poses, "n_nodes": len(poses)})()
+            self.nodes, self.revision = nodes, 0
+
+    from runtime.config import MapConfig
+    from runtime.node_scans import NodeScans
+
+    world = room_world(1, size=(16.0, 10.0), boxes=8, walls=2)
+    angles = np.linspace(-np.pi, np.pi, 360, endpoint=False)
+    poses = np.array([(x, 5.0, 0.3 * k) for k, x in enumerate(np.linspace(2.0, 14.0, 7))])
+    nodes, scan = NodeScans(len(poses), len(angles)), PointScan(len(angles))
+    for k, p in enumerate(poses):
+        scan.set_ranges(scan_at(world, p, angles, 12.0), angles, 0.05, 12.0)
+        nodes.store(k, scan)
+    slam = Graph(poses, nodes)
+    painter = MapPainter(MapConfig(), nodes_per_tick=3, cells_per_tick=5000)
+    calls, painted = 0, None
+    while painted is None:
+        painted = painter.paint(slam)
+        calls += 1
+    rows = painted.grid.logodds.shape[0]
+    conversions = -(-rows // max(5000 // painted.grid.logodds.shape[1], 1))
+    assert calls == 3 + conversions  # 7 nodes 3 at a time, then the rows
+    assert conversions > 1 and not painter.busy
+    assert np.array_equal(painted.trinary, trinary_image(painted.grid)[::-1])
+    assert np.array_equal(painted.percent, occupancy_percent(painted.grid.logodds))
+    assert {0, 254, 205} <= set(np.unique(painted.trinary))
+    assert painter.paint(slam) is None and not painter.busy  # unchanged: no new pass
+    slam.revision += 1  # a loop closed: the next pass begins
+    assert painter.paint(slam) is None and painter.busy

@@ -12,8 +12,8 @@ from runtime.config import SlamConfig, override
 from runtime.graph_optimizer import GaussNewton
 from runtime.loop_closure import LoopCloser
 from runtime.node_scans import NodeScans
-from runtime.pose import compose, wrap_angle
 from runtime.place_search import pool_pyramid
+from runtime.pose import compose, wrap_angle
 from runtime.pose_graph import LOOP, PoseGraph
 from runtime.scan import PointScan
 from runtime.warm_up import room_world, scan_at
