@@ -281,8 +281,9 @@ class FrontEndConfig(Section):
         "degenerate (a plain corridor's axis): the prediction stands in along it; 0: off",
         ge=0, lt=1)
     degenerate_information: float = _setting(
-        0.01, "the least share of its information an edge keeps along a degenerate direction",
-        gt=0, le=1)
+        0.1, "the least share of its information an edge keeps along a degenerate direction "
+        "(there its value is odometry's prediction: 0.1 of 1/sigma_translation^2 is 0.16 m per "
+        "edge, the odometry gate's allowance over a node's step)", gt=0, le=1)
     curvature_step: tuple[float, float] = _setting(
         (0.05, 0.01), "finite-difference steps (m, rad) of the match's curvature", gt=0)
     spread_corrections: bool = _setting(

@@ -220,8 +220,10 @@ def test_a_loop_edge_in_a_corridor_keeps_the_share_of_information_its_setting_na
     scan = PointScan.from_points(np.r_[np.c_[xs, np.ones_like(xs)],
                                        np.c_[xs, -np.ones_like(xs)], stub])
     along = {}
+    floor = 0.01  # a floor well below the curvature's share, so that the two differ
     for share in ("curvature", "floor"):
-        config = override(SlamConfig(), {"loop_closure.degenerate_share": share})
+        config = override(SlamConfig(), {"loop_closure.degenerate_share": share,
+                                         "front_end.degenerate_information": floor})
         slam = GraphSlam(config, seed=0)
         for k, x in enumerate((0.0, 0.5)):
             slam.graph.add_node(np.array([x, 0.0, 0.0]))
@@ -233,7 +235,6 @@ def test_a_loop_edge_in_a_corridor_keeps_the_share_of_information_its_setting_na
         base = back.information()
         assert back.z_info[1, 1] > 0.99 * base[1, 1] and back.z_info[2, 2] > 0.99 * base[2, 2]
         along[share] = back.z_info[0, 0] / base[0, 0]
-    floor = SlamConfig().front_end.degenerate_information
     at_truth = np.zeros(3)  # where the scans align, and the swarm's match lies
     d = Degeneracy(back.matcher.curvature(scan, back.reference, at_truth, (0.05, 0.01)), 0.12,
                    floor)
