@@ -353,8 +353,14 @@ class LoopClosureConfig(Section):
     wide_max_radius: float = _setting(
         150.0, "m: the half-width the window grows to at most (its grids are sized for it)",
         gt=0)
-    wide_angle: float = _setting(0.5, "rad: headings searched either side of the estimate's",
-                                 gt=0)
+    wide_angle: float = _setting(0.5, "rad: headings searched either side of the estimate's, at "
+                                 "the least", gt=0)
+    wide_turn_drift: float = _setting(
+        0.001, "rad of that per m of path since the last closure with the old map: the "
+        "heading's drift grows with it too", ge=0)
+    wide_max_angle: float = _setting(
+        1.0, "rad: the headings either side grow to at most this (its buffers are sized for it)",
+        gt=0)
     wide_resolution: float = _setting(0.4, "m per cell of the wide search's hit grid", gt=0)
     wide_hit_sigma: float = _setting(0.2, "m: a point this far from a surface scores e^(-1/2)",
                                      gt=0)

@@ -10,8 +10,9 @@ grid centred on the estimate, and an exhaustive branch and bound (the relocaliza
 :func:`runtime.place_search.branch_and_bound`) scores the node's scan at every position within
 the window and every heading within ``wide_angle`` of it. The window's half-width grows with
 the path since the last closure with the old map (``wide_drift`` of it, from ``wide_radius``
-up to ``wide_max_radius``): the farther the robot went unanchored, the farther it may have
-drifted. The best pose is a *proposal* only if
+up to ``wide_max_radius``), and so do the headings (``wide_turn_drift`` of it, from
+``wide_angle`` up to ``wide_max_angle``): the farther the robot went unanchored, the farther
+it may have drifted and turned. The best pose is a *proposal* only if
 
 * it scores at least ``wide_min_score`` (mean hit value),
 * no distinct pose (farther than ``wide_distinct_distance``) scores ``wide_ratio`` of it — in a
@@ -139,12 +140,14 @@ class WideLoopSearch:
         self.shifts = np.zeros(levels + 1, np.int64)
         res = c.wide_resolution
         self.step = heading_step(res, c.wide_query_range)
-        self.n_headings = 2 * int(math.ceil(c.wide_angle / self.step)) + 1
+        self.widest_angle = max(c.wide_angle, c.wide_max_angle)
+        most = self._headings(self.widest_angle)
+        self.n_headings = self._headings(c.wide_angle)  # the search under way's
         self._query = np.zeros((max_points, 2))
         self._recent = PointScan(max_points * c.wide_query_nodes)
         self._turned = np.zeros((c.wide_query_points, 2))
-        self._offsets = np.zeros((self.n_headings, c.wide_query_points, 2), np.int64)
-        self._roots = np.zeros((self.n_headings * (-(-n // (1 << levels))) ** 2, 5), np.int64)
+        self._offsets = np.zeros((most, c.wide_query_points, 2), np.int64)
+        self._roots = np.zeros((most * (-(-n // (1 << levels))) ** 2, 5), np.int64)
         self._stack = np.zeros((8 * (levels + 2), 5), np.int64)
         self._search_state = np.zeros(SEARCH_STATE, np.int64)
         self._found = np.zeros((2, 4), np.int64)  # the best and one rival are all we need
@@ -185,6 +188,19 @@ class WideLoopSearch:
         self._d2 = self._d2_buffer[: n * n].reshape(n, n)
         self.bounds = self._bounds_buffer[: (levels + 1) * n * n].reshape(levels + 1, n, n)
         self.free = self._free_buffer[: (levels + 1) * n * n].reshape(levels + 1, n, n)
+
+    def _headings(self, angle: float) -> int:
+        """Headings searched for ``angle`` either side of the estimate's."""
+        return 2 * int(math.ceil(angle / self.step)) + 1
+
+    def angle(self, poses, since: int, node: int) -> float:
+        """The headings searched either side of ``node``'s estimate: ``wide_turn_drift`` of the
+        path since node ``since``, within ``wide_angle`` and ``wide_max_angle`` — a long loop
+        turns the heading's estimate as it moves its position (fr-clinic seed 3: beyond 0.5 rad
+        after 780 m)."""
+        c = self.config
+        wanted = c.wide_turn_drift * path_length(poses, since, node)
+        return min(max(c.wide_angle, wanted), self.widest_angle)
 
     def radius(self, poses, since: int, node: int) -> float:
         """The window's half-width for ``node``: ``wide_drift`` of the path the graph travelled
@@ -232,6 +248,8 @@ class WideLoopSearch:
         if n_old == 0 or n_query < 3:
             return None
         self._use(radius)
+        angle = self.angle(poses, since, node)
+        self.n_headings = self._headings(angle)
         half, n, sigma = self.half, self._n, c.wide_hit_sigma
         rows = max(c.wide_slice_cells // n, 1) if sliced else n
         ox, oy = x - half * res, y - half * res  # the estimate is cell (half, half)
@@ -260,7 +278,7 @@ class WideLoopSearch:
         for first in range(0, n, rows):
             open_window(self.free, half, self.cells, first, min(first + rows, n))
             yield
-        start = t - c.wide_angle  # heading a is start + a·step
+        start = t - angle  # heading a is start + a·step
         turn_points(self._query, n_query, start, self._turned)
         rotate_query(self._turned, n_query, res, self.step, self.n_headings, self._offsets)
         min_score = int(math.ceil(c.wide_min_score * HIT_MAX * n_query))

@@ -192,6 +192,32 @@ def test_the_window_grows_with_the_path_since_the_map_last_held_the_robot(buildi
     assert math.hypot(*(placed[:2] - truth[15, :2])) < 0.3
 
 
+def test_the_headings_searched_grow_with_the_path_too(building):
+    """A return turned farther than ``wide_angle`` is not found; with ``wide_turn_drift`` the
+    headings searched grow with the path since the last closure with the old map (up to
+    ``wide_max_angle``) and the return is placed."""
+    world, truth = building
+    poses, nodes = graph_of(world, truth, 12)
+    turned = compose([0.0, 0.0, 0.45], DRIFT)  # 0.65 rad off: beyond wide_angle's 0.5
+    poses[12:] = compose(turned, np.array(truth[12:], np.float64))
+    path = sum(math.hypot(*(poses[k + 1, :2] - poses[k, :2])) for k in range(15))
+    outcomes = {}
+    for drift in (0.0, 0.05):
+        c = override(CONFIG, {"loop_closure.wide_turn_drift": drift,
+                              "loop_closure.wide_max_angle": 1.0}).loop_closure
+        wide = WideLoopSearch(c, 64, CONFIG.sensor.max_points, CONFIG.matcher.max_gap)
+        assert wide.angle(poses, 0, 15) == pytest.approx(
+            0.5 if drift == 0 else min(max(0.5, drift * path), 1.0))
+        assert wide.angle(poses, 15, 15) == 0.5  # just anchored: the least
+        outcomes[drift] = [wide.propose(poses, nodes, node, 0) for node in (13, 15)]
+    assert outcomes[0.0] == [None, None]
+    assert outcomes[0.05][0] is None and outcomes[0.05][1] is not None
+    anchor, z = outcomes[0.05][1]
+    placed = compose(truth[anchor], z)
+    assert math.hypot(*(placed[:2] - truth[15, :2])) < 0.3
+    assert abs(wrap_angle(placed[2] - truth[15, 2])) < 0.03
+
+
 def test_a_proposal_is_judged_by_its_own_error_not_by_the_drift_it_repairs():
     """After a long drift a true closure bends the whole chain: the total χ² rises past
     ``total_gate`` although the edge itself is absorbed (own χ² near 0). An ordinary closure
