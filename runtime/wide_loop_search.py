@@ -45,8 +45,8 @@ from runtime.place_search import (
     SEARCH_STATE,
     UNLIMITED,
     branch_and_bound,
-    heading_step,
     clear_distances,
+    heading_step,
     hits_from_distances,
     pool_bound_level,
     pool_level,
@@ -116,6 +116,14 @@ def nearest_node(poses, index, n, x, y):
         if d2 < best_d2:
             best, best_d2 = k, d2
     return best
+
+
+def _in_parts(n, rows, kernel, *args):
+    """``kernel(*args, first, last)`` over rows ``0:n``, ``rows`` at a time, yielding after
+    each part (a slice of the wide search)."""
+    for first in range(0, n, rows):
+        kernel(*args, first, min(first + rows, n))
+        yield
 
 
 class WideLoopSearch:
@@ -254,30 +262,20 @@ class WideLoopSearch:
         rows = max(c.wide_slice_cells // n, 1) if sliced else n
         ox, oy = x - half * res, y - half * res  # the estimate is cell (half, half)
         # the old nodes' hit grid, its pyramid and the bounds on it, the window's levels
-        for first in range(0, n, rows):
-            clear_distances(self._d2, sigma, first, min(first + rows, n))
-            yield
+        yield from _in_parts(n, rows, clear_distances, self._d2, sigma)
         per_slice = c.wide_slice_nodes if sliced else n_old
         for first in range(0, n_old, per_slice):
             splat_scans(nodes.points, nodes.counts, poses, self._index, first,
                         min(first + per_slice, n_old), c.wide_query_range + radius,
                         self.max_gap, ox, oy, res, sigma, self._d2)
             yield
-        for first in range(0, n, rows):
-            hits_from_distances(self._d2, sigma, self._pyramid[0], first, min(first + rows, n))
-            yield
+        yield from _in_parts(n, rows, hits_from_distances, self._d2, sigma, self._pyramid[0])
         for h in range(1, self._pyramid.shape[0]):
-            for first in range(0, n, rows):
-                pool_level(self._pyramid, h, first, min(first + rows, n))
-                yield
+            yield from _in_parts(n, rows, pool_level, self._pyramid, h)
         for h in range(self.bounds.shape[0]):
-            for first in range(0, n, rows):
-                pool_bound_level(self._pyramid, self.shifts, self.bounds, h, first,
-                                 min(first + rows, n))
-                yield
-        for first in range(0, n, rows):
-            open_window(self.free, half, self.cells, first, min(first + rows, n))
-            yield
+            yield from _in_parts(n, rows, pool_bound_level, self._pyramid, self.shifts,
+                                 self.bounds, h)
+        yield from _in_parts(n, rows, open_window, self.free, half, self.cells)
         start = t - angle  # heading a is start + a·step
         turn_points(self._query, n_query, start, self._turned)
         rotate_query(self._turned, n_query, res, self.step, self.n_headings, self._offsets)
