@@ -240,6 +240,15 @@ def _config_fields(args) -> int:
     return 0
 
 
+def _relations_audit(args) -> int:
+    from scripts.relations_audit import audit_command
+
+    if not 0 < args.min_gain <= 1:
+        raise ValueError(f"--min-gain must be in (0, 1], got {args.min_gain}")
+    audit_command(args.log, args.relations, args.trajectory, args.json, args.min_gain)
+    return 0
+
+
 def _simlog(args) -> int:
     from scripts.simlog import write_simlog
 
@@ -452,6 +461,21 @@ def build_parser() -> argparse.ArgumentParser:
                     help="laser lines (auto: FLASER for a 180° scanner, else ROBOTLASER1)")
     sl.add_argument("--seconds", type=float, help="only the route's first seconds")
     sl.set_defaults(func=_simlog)
+
+    re_ = sub.add_parser("relations", help="relations files (Kümmerle et al.)")
+    resub = re_.add_subparsers(dest="relations_command", required=True)
+    au = resub.add_parser("audit", help="check each relation against the log's own scans; "
+                                        "with a trajectory, score it apart on the relations "
+                                        "the scans confirm and those they contradict")
+    au.add_argument("log", help="the CARMEN log the relations refer to")
+    au.add_argument("relations", help="Kümmerle relations file")
+    au.add_argument("--trajectory", help="a TUM trajectory of the log to score (e.g. a "
+                                         "replay's trajectory.tum)")
+    au.add_argument("--json", help="write the audit (and every contradicted relation) here")
+    au.add_argument("--min-gain", type=float, default=0.2,
+                    help="share of the second scan's points ICP from the relation must fit "
+                         "in addition for the scans to contradict it")
+    au.set_defaults(func=_relations_audit)
 
     sw = sub.add_parser("sweep", help="replays over logs × optimizers × seeds × configuration "
                                       "variants as Ray tasks, resumable (docs/sweeps.md)")

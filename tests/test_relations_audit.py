@@ -1,0 +1,81 @@
+"""``swarmslam relations audit``: relations checked against the log's own scans."""
+
+import doctest
+import gzip
+import json
+
+import numpy as np
+
+import scripts.relations_audit as relations_audit
+from runtime.pose import between, compose
+from runtime.warm_up import loop_path, room_world, scan_at
+from scripts.carmen import flaser_angles
+from scripts.cli import main
+from scripts.relations import relations_text
+from scripts.tum import write_tum
+
+
+def write_room_log(path, steps=12, seed=1):
+    """FLASER scans of a synthetic room along a path; returns the true poses and stamps."""
+    poses = loop_path(40)[:steps]  # ~0.5 m and 9° apart: consecutive scans overlap
+    world = room_world(seed, size=(12.0, 9.0), boxes=10, walls=0, keep_clear=poses)
+    angles = flaser_angles(180)
+    stamps = 100.0 + np.arange(steps)
+    with gzip.open(path, "wt") as f:
+        for p, t in zip(poses, stamps):
+            ranges = " ".join(f"{v:.3f}" for v in scan_at(world, p, angles, 50.0))
+            pose = f"{p[0]:.6f} {p[1]:.6f} {p[2]:.6f}"
+            f.write(f"FLASER 180 {ranges} {pose} {pose} {t:.3f} host {t:.3f}\n")
+    return poses, stamps
+
+
+def test_the_modules_example_runs_as_written():
+    result = doctest.testmod(relations_audit)
+    assert result.attempted > 0 and result.failed == 0
+
+
+def test_true_relations_pass_and_displaced_ones_are_flagged_and_scored_apart(tmp_path, capsys):
+    poses, stamps = write_room_log(tmp_path / "room.clf.gz")
+    i = np.r_[np.arange(len(poses) - 1), np.arange(len(poses) - 2)]
+    j = np.r_[i[: len(poses) - 1] + 1, i[len(poses) - 1:] + 2]
+    delta = between(poses[j], poses[i])
+    wrong = np.arange(len(i)) % 3 == 1  # every third relation displaced as a bad reference is
+    displacement = np.array([0.4, -0.3, 0.08])
+    delta[wrong] = compose(delta[wrong], displacement)
+    (tmp_path / "room.relations").write_text(relations_text(stamps[i], stamps[j], delta))
+    write_tum(tmp_path / "truth.tum", stamps, poses)
+
+    out = tmp_path / "audit.json"
+    assert main(["relations", "audit", str(tmp_path / "room.clf.gz"),
+                 str(tmp_path / "room.relations"), "--trajectory", str(tmp_path / "truth.tum"),
+                 "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert result["checked"] == len(i)
+    flagged = {(r["t1"], r["t2"]) for r in result["contradicted_relations"]}
+    assert flagged == {(float(stamps[a]), float(stamps[b])) for a, b in zip(i[wrong], j[wrong])}
+    back = between(np.zeros(3), displacement)
+    for r in result["contradicted_relations"]:  # ICP took each back to the truth, nearly
+        assert np.hypot(*(np.array(r["correction"][:2]) - back[:2])) < 0.1  # of 0.5
+        assert abs(r["correction"][2] - back[2]) < 0.02
+    scores = result["scores"]  # the true trajectory errs only where the reference does
+    assert scores["confirmed"]["eT"] < 1e-3 and scores["confirmed"]["relations_used"] == (~wrong).sum()
+    assert scores["contradicted"]["eT"] > 0.4 and scores["contradicted"]["relations_used"] == wrong.sum()
+    assert "contradicted" in capsys.readouterr().out
+
+
+def test_a_relation_naming_a_scan_the_log_lacks_is_not_checked(tmp_path):
+    poses, stamps = write_room_log(tmp_path / "room.clf.gz", steps=3)
+    delta = between(poses[[1, 2]], poses[[0, 1]])
+    (tmp_path / "room.relations").write_text(
+        relations_text([stamps[0], stamps[1]], [stamps[1], 999.0], delta))
+    out = tmp_path / "audit.json"
+    assert main(["relations", "audit", str(tmp_path / "room.clf.gz"),
+                 str(tmp_path / "room.relations"), "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert (result["relations"], result["checked"], result["contradicted"]) == (2, 1, 0)
+
+
+def test_a_bad_min_gain_is_refused_before_any_work(tmp_path, capsys):
+    assert main(["relations", "audit", str(tmp_path / "none.clf"), str(tmp_path / "none"),
+                 "--min-gain", "0"]) == 2
+    assert "--min-gain" in capsys.readouterr().err
