@@ -245,7 +245,8 @@ def _relations_audit(args) -> int:
 
     if not 0 < args.min_gain <= 1:
         raise ValueError(f"--min-gain must be in (0, 1], got {args.min_gain}")
-    audit_command(args.log, args.relations, args.trajectory, args.json, args.min_gain)
+    audit_command(args.log, args.relations, args.trajectory, args.json, args.min_gain,
+                  args.plots)
     return 0
 
 
@@ -475,6 +476,8 @@ def build_parser() -> argparse.ArgumentParser:
     au.add_argument("--min-gain", type=float, default=0.2,
                     help="share of the second scan's points ICP from the relation must fit "
                          "in addition for the scans to contradict it")
+    au.add_argument("--plots", metavar="DIR", help="write the audit's figure (PNG) here "
+                                                   "(extra 'plots')")
     au.set_defaults(func=_relations_audit)
 
     sw = sub.add_parser("sweep", help="replays over logs × optimizers × seeds × configuration "

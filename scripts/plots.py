@@ -61,6 +61,40 @@ def slam_errors_over_time(out_dir, label: str, t, e_t, e_r_deg, is_local) -> Pat
     return save(fig, Path(out_dir) / f"slam-{_slug(label)}.png")
 
 
+def relations_audit_figure(out_dir, label: str, t, fit, fit_aligned, contradicted,
+                           e_r_deg=None) -> Path:
+    """A relations file checked against its scans (``swarmslam relations audit``): each
+    relation's fit and what ICP gained over it at the time of its first scan, contradicted
+    ones in red; with a trajectory's rotation errors, those too, split the same way."""
+    plt = _pyplot()
+    rows = 2 if e_r_deg is not None else 1
+    fig, axes = plt.subplots(rows, 1, figsize=(9, 2.6 * rows + 0.4), sharex=True, squeeze=False)
+    t, fit, fit_aligned, bad = map(np.asarray, (t, fit, fit_aligned, contradicted))
+    a = axes[0, 0]
+    for mask, name, color in ((~bad, "confirmed", "tab:blue"), (bad, "contradicted", "tab:red")):
+        if np.any(mask):
+            a.plot(t[mask], fit_aligned[mask] - fit[mask], ".", ms=3, color=color,
+                   label=f"{name} ({mask.sum()})")
+    a.set_ylabel("share of points ICP\nfits beyond the relation")
+    a.set_title(f"{label}: {bad.sum()} of {len(bad)} relations contradicted by their scans")
+    a.legend(loc="upper left", fontsize=8)
+    if e_r_deg is not None:
+        b = axes[1, 0]
+        e = np.asarray(e_r_deg)
+        for mask, name, color in ((~bad, "confirmed", "tab:blue"),
+                                  (bad, "contradicted", "tab:red")):
+            if np.any(mask):
+                b.plot(t[mask], e[mask], ".", ms=3, color=color,
+                       label=f"{name}: mean {np.nanmean(e[mask]):.3f}°")
+        b.set_yscale("log")
+        b.set_ylabel("trajectory's rotation error (°)")
+        b.legend(loc="upper left", fontsize=8)
+    axes[-1, 0].set_xlabel("time of the relation's first scan (s from the log's start)")
+    for ax in axes[:, 0]:
+        ax.grid(True, which="both", alpha=0.3)
+    return save(fig, Path(out_dir) / f"audit-{_slug(label)}.png")
+
+
 def slam_summary(out_dir, summary, published) -> list[Path]:
     """Per log: mean eT over seeds (bar) and worst seed (tick) per optimizer and input,
     beside the published systems (lines)."""

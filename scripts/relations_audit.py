@@ -29,6 +29,7 @@ shows how much of its relation error is the reference's own: an error there is n
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -38,7 +39,8 @@ from runtime.scan import PointScan
 from runtime.writers import write_json_atomic
 from scripts.carmen import read_carmen
 from scripts.icp import icp
-from scripts.metrics import LOCAL_GAP, kummerle, match_relations
+from scripts.metrics import LOCAL_GAP, kummerle, match_relations, relation_errors
+from scripts.plots import relations_audit_figure, require_matplotlib
 from scripts.progress import Progress
 from scripts.relations import Relations, read_relations
 from scripts.replay import robot_frame_scan
@@ -149,9 +151,12 @@ def scored_apart(stamps, poses, relations: Relations, audit: Audit) -> dict:
 
 
 def audit_command(log_path, relations_path, trajectory_path=None, json_path=None,
-                  min_gain: float = MIN_GAIN) -> dict:
+                  min_gain: float = MIN_GAIN, plots=None) -> dict:
     """The audit of ``relations_path`` against ``log_path``'s scans, printed; with a TUM
-    ``trajectory_path``, that trajectory scored apart (:func:`scored_apart`)."""
+    ``trajectory_path``, that trajectory scored apart (:func:`scored_apart`); ``plots``: a
+    folder for the figure."""
+    if plots:
+        require_matplotlib()
     relations = read_relations(relations_path)
     stamps, poses = read_tum(trajectory_path) if trajectory_path else (None, None)
     scans, scan_stamps = log_scans(log_path)
@@ -177,6 +182,17 @@ def audit_command(log_path, relations_path, trajectory_path=None, json_path=None
                 line += (f"; local eT {s['eT_local']:.4f} m, eR {s['eR_local_deg']:.3f}° "
                          f"({s['relations_local']})")
             print(line)
+    if plots:
+        e_r = None
+        if trajectory_path:
+            ok, _, e_r_used = relation_errors(stamps, poses, relations)
+            e_r = np.full(len(relations), np.nan)
+            e_r[ok] = e_r_used
+        c = audit.checked
+        path = relations_audit_figure(plots, Path(relations_path).name, relations.t1[c]
+                                      - scan_stamps.min(), audit.fit[c], audit.fit_aligned[c],
+                                      audit.contradicted[c], None if e_r is None else e_r[c])
+        print(f"wrote {path}")
     if json_path:
         result["contradicted_relations"] = [
             {"t1": float(relations.t1[k]), "t2": float(relations.t2[k]),

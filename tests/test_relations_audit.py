@@ -48,7 +48,9 @@ def test_true_relations_pass_and_displaced_ones_are_flagged_and_scored_apart(tmp
     out = tmp_path / "audit.json"
     assert main(["relations", "audit", str(tmp_path / "room.clf.gz"),
                  str(tmp_path / "room.relations"), "--trajectory", str(tmp_path / "truth.tum"),
-                 "--json", str(out)]) == 0
+                 "--json", str(out), "--plots", str(tmp_path / "plots")]) == 0
+    figure = (tmp_path / "plots" / "audit-room.relations.png").read_bytes()
+    assert figure[:8] == b"\x89PNG\r\n\x1a\n"
     result = json.loads(out.read_text())
     assert result["checked"] == len(i)
     flagged = {(r["t1"], r["t2"]) for r in result["contradicted_relations"]}
