@@ -7,8 +7,8 @@ relation and count the share of its points within ``inlier_distance`` of the fir
 ICP start from the relation (and from it turned by ``HEADING_STARTS_DEG``: a relation a few
 degrees off is outside point-to-point ICP's reach) and count again at the best it finds. A
 right relation is already at (or within a centimetre or two of) the best fit, so ICP gains
-nothing; a relation the scans contradict gains ``min_gain`` or more once ICP moves it. A relation whose scans do not overlap cannot be
-checked and is never flagged.
+nothing; a relation the scans contradict gains ``min_gain`` or more once ICP moves it. A
+relation whose scans do not overlap cannot be checked and is never flagged.
 
 Scored apart on the relations the scans confirm and on those they contradict, a trajectory
 shows how much of its relation error is the reference's own: an error there is not the SLAM's.

@@ -60,8 +60,9 @@ def test_true_relations_pass_and_displaced_ones_are_flagged_and_scored_apart(tmp
         assert np.hypot(*(np.array(r["correction"][:2]) - back[:2])) < 0.1  # of 0.5
         assert abs(r["correction"][2] - back[2]) < 0.02
     scores = result["scores"]  # the true trajectory errs only where the reference does
-    assert scores["confirmed"]["eT"] < 1e-3 and scores["confirmed"]["relations_used"] == (~wrong).sum()
-    assert scores["contradicted"]["eT"] > 0.4 and scores["contradicted"]["relations_used"] == wrong.sum()
+    confirmed, contradicted = scores["confirmed"], scores["contradicted"]
+    assert confirmed["eT"] < 1e-3 and confirmed["relations_used"] == (~wrong).sum()
+    assert contradicted["eT"] > 0.4 and contradicted["relations_used"] == wrong.sum()
     assert "contradicted" in capsys.readouterr().out
 
 
