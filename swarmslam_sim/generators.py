@@ -145,6 +145,9 @@ def _room_row(rng, segs, a, b, y_wall, depth, horizontal, spacing=(3.5, 6.0)):
         lo, hi = sorted((y_wall, y_wall + depth))
         for _ in range(rng.integers(1, 3)):
             w, h = rng.uniform(0.4, 1.1, size=2)
+            room = (nxt - pos) / 2 - 0.3  # a narrow last room (2 m at least) takes a
+            if w > room:  # narrower box, or the draw has no range (and other rooms as before)
+                w = room - 0.05
             u = rng.uniform(pos + 0.3 + w, nxt - 0.3 - w)
             v = rng.uniform(lo + 0.3 + h, hi - 0.3 - h)
             segs += box_segments(*((u, v) if horizontal else (v, u)), w, h, rng.uniform(0, math.pi))
