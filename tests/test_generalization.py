@@ -3,6 +3,7 @@ scores, and the SLAM on a generated building: a 76 m loop closed after biased od
 loop constraint that does not bend the map, a corridor the matcher cannot pin along its axis."""
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -135,10 +136,32 @@ def test_the_floors_oracle_aligns_a_wide_proposal_at_the_true_pose(loop_run):
         z = slam.back_end.align_loop(candidate, node, off, np.array([0.3, 0.3, 0.05]))
     finally:  # the hooks are instance attributes over the methods: the shared run as it was
         for owner, name in ((slam.front_end.matcher, "align_scans"),
-                            (slam.back_end.matcher, "align_scans"), (slam.back_end, "align_loop")):
+                            (slam.back_end.matcher, "align_scans"), (slam.back_end, "align_loop"),
+                            (slam.front_end, "_constrained")):
             delattr(owner, name)
     assert z is not None
     assert np.hypot(*(z[:2] - true_z[:2])) < 0.1 and abs(z[2] - true_z[2]) < 0.02, (z, true_z)
+
+
+def test_the_floor_holds_a_corridors_axis_at_the_truth_not_at_odometry():
+    """In a plain corridor the front end keeps the prediction along the axis the scan does not
+    pin; in the floor's run (perfect matching) that prediction is the truth. It once was noisy
+    odometry's, and the floor drifted along the corridor (0.72 m here; ATE 0.35 m in the suite's
+    corridor case, as bad as the SLAM it is the floor of)."""
+    survey = run_survey(site("corridor", seed=0), "sick-1", 10.0, "noisy", seed=13, seconds=60.0)
+    config = override(SlamConfig(), {"front_end.odometry_gate": None,
+                                     "front_end.min_track_inliers": 0.0})
+    slam = GraphSlam(config, seed=0)
+    truth = _truth_in_map_frame(survey)
+    oracle, run = TruthOracle(survey.stamps, truth), SimpleNamespace(slam=slam)
+    scan = PointScan(400)
+    for k, (t, odo, ranges) in enumerate(zip(survey.stamps, survey.odometry, survey.ranges)):
+        oracle(k, run)
+        scan.set_ranges(ranges, survey.angles, 0.05, survey.lidar.max_range)
+        slam.step(scan, odo, float(t))
+    _, est = slam.trajectory()
+    assert slam.front_end.degenerate_matches > len(survey.stamps) // 2  # the axis was free
+    assert np.max(np.hypot(*(est[:, :2] - truth[:, :2]).T)) < 0.3
 
 
 def test_loop_scores_count_a_closure_correct_only_near_the_truth():

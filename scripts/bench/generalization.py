@@ -120,7 +120,9 @@ def truth_at(stamps, truth, t):
 class TruthOracle:
     """Starts every alignment of a run at the true relative pose (the floor's "perfect scan
     matching"): it replaces the guess the front end and the loop search pass to their
-    matchers. The floor's run trusts every match (no odometry gate, no inlier test). Passed as
+    matchers, and the prediction the front end keeps along a direction its scan does not pin
+    (a corridor's axis). The floor's run trusts every match (no odometry gate, no inlier
+    test). Passed as
     ``replay_run``'s ``before_scan``: it takes hold of the run's SLAM at the first scan and then
     follows which scan is being tracked."""
 
@@ -138,15 +140,23 @@ class TruthOracle:
     def _true_node(self, node):
         return truth_at(self.stamps, self.truth, self.slam.graph.stamps[node])
 
+    def _true_rel(self):
+        """The tracked scan's true pose in its keyframe's frame."""
+        return between(self.truth[self.scan], self._true_node(self.slam.front_end.keyframe))
+
     def _take_hold(self, slam):
         self.slam = slam
         fe, be = slam.front_end, slam.back_end
         fe_align, be_align = fe.matcher.align_scans, be.matcher.align_scans
-        align_loop = be.align_loop
+        align_loop, constrained = be.align_loop, fe._constrained
 
         def front(scan, reference, guess=None, window=None):
-            true_rel = between(self.truth[self.scan], self._true_node(fe.keyframe))
-            return fe_align(scan, reference, true_rel, window)
+            return fe_align(scan, reference, self._true_rel(), window)
+
+        def constrained_at_truth(scan, pose, guess):
+            # along a direction the scan does not pin (a corridor's axis) the front end takes
+            # the prediction: a perfect matcher's is the truth, not odometry's
+            return constrained(scan, pose, self._true_rel())
 
         def back(scan, reference, guess=None, window=None):
             c, n = self.loop
@@ -158,6 +168,7 @@ class TruthOracle:
             return align_loop(candidate, node, guess, window)
 
         fe.matcher.align_scans, be.matcher.align_scans, be.align_loop = front, back, loop
+        fe._constrained = constrained_at_truth
 
 
 def run_case(case: Case, work: Path, config: SlamConfig | None = None, floor: bool = True,
