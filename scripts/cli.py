@@ -539,7 +539,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=_bench_slam)
     ge = bsub.add_parser("generalization", help="SLAM on seeded simulated surveys, scored "
                                                  "against the true poses")
-    ge.add_argument("--cases", help="comma-separated names or parts of names (default: all)")
+    ge.add_argument("--cases", help="comma-separated names or parts of names (default: all); "
+                                    "a full name with any seed makes that case "
+                                    "(corridor-sick-0.5-10hz-noisy-s13)")
     ge.add_argument("--no-floor", action="store_true",
                     help="skip the perfect-scan-matching floor (halves the time)")
     ge.add_argument("--keep", metavar="DIR", help="keep the generated logs here")

@@ -17,7 +17,14 @@ from runtime.pose_graph import LOOP
 from runtime.scan import PointScan
 from runtime.scan_matcher import ScanMatcher
 from runtime.slam import GraphSlam
-from scripts.bench.generalization import CASES, TruthOracle, loop_scores, rigid_ate, select
+from scripts.bench.generalization import (
+    CASES,
+    TruthOracle,
+    loop_scores,
+    parse_case,
+    rigid_ate,
+    select,
+)
 from scripts.carmen import read_carmen
 from scripts.relations import read_relations
 from scripts.simlog import log_text, sample_relations, write_simlog
@@ -283,3 +290,15 @@ def test_visibility_counts_points_seen_on_surfaces_and_points_seen_through():
     visibility(points, counts, poses, members, 1, 0, ring.buffer, ring.count, -1.0, 0.0, 0.0,
                0.2, 0.01, image, state, out)
     assert out[1] > 0.3 * ring.count
+
+
+def test_a_full_case_name_makes_any_case_and_a_part_picks_from_the_suite():
+    assert all(parse_case(c.name) == c for c in CASES)  # every suite name reads back
+    held_out = select(["corridor-sick-0.5-10hz-noisy-s13", "hall"])
+    assert held_out[0].name == "corridor-sick-0.5-10hz-noisy-s13" and held_out[0] not in CASES
+    assert [c.site for c in held_out[1:]] == ["hall", "hall"]
+    scans_only = parse_case("building-sick-1-4.7hz-scans-only-s7")
+    assert not scans_only.use_odometry and scans_only.seed == 7 and scans_only.rate_hz == 4.7
+    assert parse_case("building-sick-9-10hz-good-s1") is None  # no such scanner
+    with pytest.raises(ValueError, match="full name"):
+        select(["nothing"])

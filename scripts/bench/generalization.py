@@ -16,6 +16,7 @@ could reach.
 from __future__ import annotations
 
 import math
+import re
 import tempfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -30,6 +31,7 @@ from scripts.plots import bars, require_matplotlib
 from scripts.replay import replay_run
 from scripts.simlog import write_simlog
 from scripts.tum import read_tum
+from swarmslam_sim.survey import ODOMETRY, SCANNERS, SITES
 
 CORRECT_LOOP = (0.2, math.radians(2.0))  # m, rad
 REVISIT = (1.0, math.radians(90.0), 30.0)  # m, rad apart in heading, s apart in time
@@ -264,12 +266,34 @@ def format_summary(s) -> str:
     return text
 
 
+_CASE_NAME = re.compile(r"(?P<site>[a-z]+)-(?P<scanner>.+)-(?P<rate>\d+(?:\.\d+)?)hz-"
+                        r"(?P<odometry>[a-z-]+)-s(?P<seed>\d+)")
+
+
+def parse_case(name: str) -> Case | None:
+    """A case from its full name (``corridor-sick-1-10hz-noisy-s13``): any site, scanner, rate,
+    odometry and seed, in the suite or not (held-out cases); None if the name is not one."""
+    m = _CASE_NAME.fullmatch(name)
+    if m is None:
+        return None
+    odometry, use_odometry = m["odometry"], m["odometry"] != "scans-only"
+    if not use_odometry:
+        odometry = "good"
+    if m["site"] not in SITES or m["scanner"] not in SCANNERS or odometry not in ODOMETRY:
+        return None
+    return Case(m["site"], m["scanner"], float(m["rate"]), odometry, use_odometry, int(m["seed"]))
+
+
 def select(names) -> tuple[Case, ...]:
-    """Cases by name or by a part of it (``building``, ``rplidar``)."""
+    """Cases by full name (any seed: see :func:`parse_case`) or by a part of a suite case's
+    name (``building``, ``rplidar``)."""
     if not names:
         return CASES
-    chosen = tuple(c for c in CASES if any(n in c.name for n in names))
+    chosen = [c for n in names if (c := parse_case(n)) is not None]
+    chosen += [c for c in CASES if c not in chosen
+               and any(parse_case(n) is None and n in c.name for n in names)]
     if not chosen:
         raise ValueError(f"no case matches {', '.join(names)}; cases: "
-                         + ", ".join(c.name for c in CASES))
-    return chosen
+                         + ", ".join(c.name for c in CASES) + ", or any full name "
+                         "site-scanner-RATEhz-odometry-sSEED")
+    return tuple(chosen)
