@@ -10,13 +10,13 @@ from runtime.pose import compose, transform_points
 
 
 def icp(reference, current, initial=(0.0, 0.0, 0.0), max_iterations=50, tolerance=1e-6,
-        max_correspondence=1.0):
+        max_correspondence=1.0, tree: cKDTree | None = None):
     """Pose of ``current`` in ``reference``'s frame, from ``initial``.
 
     Correspondences farther than ``max_correspondence`` (m) are ignored. Returns the pose and
-    the iterations used.
+    the iterations used. ``tree``: ``reference``'s k-d tree, when the caller has built it.
     """
-    tree = cKDTree(reference)
+    tree = cKDTree(reference) if tree is None else tree
     pose = np.asarray(initial, dtype=np.float64).copy()
     for iteration in range(1, max_iterations + 1):
         moved = transform_points(pose, current)

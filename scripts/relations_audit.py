@@ -115,7 +115,7 @@ def audit_scans(scans, stamps, relations: Relations, inlier_distance: float = IN
         fit_aligned[k] = -1.0
         for turn in HEADING_STARTS_DEG:
             start = compose(relations.delta[k], np.array([0.0, 0.0, np.radians(turn)]))
-            aligned, _ = icp(a, b, start, max_correspondence=max_correspondence)
+            aligned, _ = icp(a, b, start, max_correspondence=max_correspondence, tree=tree)
             aligned_fit = scan_fit(tree, b, aligned, inlier_distance)
             if aligned_fit > fit_aligned[k]:
                 fit_aligned[k] = aligned_fit
