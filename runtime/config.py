@@ -289,6 +289,24 @@ class FrontEndConfig(Section):
     spread_corrections: bool = _setting(
         True, "a scan between two nodes takes the graph's correction of both, shared by time "
         "(false: its tracking node's alone)")
+    odometry_noise_window: int = _setting(
+        0, "node steps (of each kind: straight, turning left, right) whose heading residual "
+        "between match and odometry estimates odometry's heading bias and noise, with which "
+        "each edge's heading is fused with odometry's (docs/method.md §6.1; 200 with a robot "
+        "whose odometry is known to be good); 0: off, the edge is the match alone", ge=0)
+    odometry_noise_min_steps: int = _setting(
+        20, "node steps of a kind seen before odometry's heading is fused on steps of that kind",
+        ge=1)
+    odometry_turn_split: float = _setting(
+        0.25, "rad: node steps turning more than this (left, right) estimate odometry's heading "
+        "noise and bias apart from straight ones (odometry errs most, one-sidedly, in turns)",
+        gt=0)
+    odometry_sigma_floor: float = _setting(
+        0.001, "rad: odometry's heading σ over a node step is never taken below this", gt=0)
+    match_heading_sigma: tuple[float, float] = _setting(
+        (0.0035, 0.014), "rad: the match's own heading σ over a node step (straight, turning): "
+        "the share of the match-odometry disagreement that is not odometry's; the edge's heading "
+        "information (sigma_rotation) stands for it when odometry's is weighed against it", gt=0)
 
 
 @dataclass(frozen=True)

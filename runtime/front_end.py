@@ -9,7 +9,9 @@ last motion the scans showed), and matching every scan against the same keyframe
 error between two nodes to one match instead of a sum of many. A match that lands too few
 points on the keyframe's surfaces, or (with odometry) corrects odometry by more than the
 odometry gate, has lost track: odometry stands in, or on scans alone the whole box is searched.
-The trajectory — every scan's node and pose in that node's frame — is recorded here.
+With ``odometry_noise_window`` set, a node's edge takes odometry's heading in the share that
+odometry's record in this log has earned (runtime.odometry_noise). The trajectory — every
+scan's node and pose in that node's frame — is recorded here.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from runtime.config import FrontEndConfig, SlamConfig
 from runtime.degeneracy import Degeneracy
 from runtime.loop_closure import propagate_covariance
 from runtime.node_scans import NodeScans
+from runtime.odometry_noise import OdometryNoise
 from runtime.pose import between, compose, interpolate
 from runtime.pose_graph import ODOMETRY, PoseGraph, information_from_sigma
 from runtime.scan import PointScan
@@ -95,6 +98,14 @@ class FrontEnd:
         self.motion = np.zeros(3)  # last motion between scans, for a scan-only prediction
         self.last_odometry = np.zeros(3)  # odometry at the previous scan (a copy)
         self.have_odometry = False
+        # Odometry at the keyframe's scan, and whether every scan since brought a reading: the
+        # node step's odometry, fused with the match's heading (runtime.odometry_noise).
+        self.keyframe_odometry = np.zeros(3)
+        self.odometry_since_keyframe = False
+        f = config.front_end
+        self.odometry_noise = OdometryNoise(f.odometry_noise_window, f.odometry_noise_min_steps,
+                                            f.odometry_turn_split, f.odometry_sigma_floor,
+                                            f.match_heading_sigma)
         self.weak = False  # a match since the last node was replaced by odometry
         self.lost_matches = 0
         self.degenerate_matches = 0  # matches held to the prediction along a direction
@@ -110,6 +121,7 @@ class FrontEnd:
             self._start(scan, odometry, stamp)
             return Tracking(self.graph.poses[0].copy(), True, 0, 0.0)
         step = self._predicted_motion(odometry)
+        self.odometry_since_keyframe &= odometry is not None
         guess = compose(self.rel, step)
         match = self.matcher.align_scans(scan, self.reference, guess)  # Alg. 5
         self.evaluations = match.evaluations
@@ -142,20 +154,27 @@ class FrontEnd:
             self.status = CAPACITY_STATUS
             return False
         previous = self.keyframe
-        node = g.add_node(compose(g.poses[previous], self.rel), stamp)
         info = self.information()
         if self.degeneracy is not None:  # the edge is the last match: weak where it slid
             info = self.degeneracy.information(info)
+        z = self.rel
+        if self.odometry_since_keyframe:  # odometry's heading over the step, by its record
+            z_odometry = between(self.last_odometry, self.keyframe_odometry)
+            if not self.weak:  # the match held: its disagreement with odometry is a sample
+                self.odometry_noise.add(self.rel, z_odometry)
+            z, info = self.odometry_noise.fuse(self.rel, info, z_odometry)
         if self.weak:
             info = info / c.weak_information_factor
             self.weak = False
-        g.add_edge(previous, node, self.rel, info, ODOMETRY)
+        node = g.add_node(compose(g.poses[previous], z), stamp)
+        g.add_edge(previous, node, z, info, ODOMETRY)
         cov = self.nodes.cov
-        propagate_covariance(cov[previous], g.poses[previous], self.rel, np.linalg.inv(info),
+        propagate_covariance(cov[previous], g.poses[previous], z, np.linalg.inv(info),
                              cov[node])
         self.nodes.store(node, scan)
         self.keyframe = node
         self.rel = np.zeros(3)
+        self._odometry_at_keyframe()
         self.rebuild_reference()
         return True
 
@@ -178,6 +197,7 @@ class FrontEnd:
         self.rel[:], self.motion[:] = 0.0, 0.0
         self.weak, self.have_odometry = False, False
         self._predicted_motion(odometry)  # the new run's odometry starts here
+        self._odometry_at_keyframe()
         self.rebuild_reference()
         self._record(stamp)
         return True
@@ -238,6 +258,7 @@ class FrontEnd:
         if odometry is not None:
             self.last_odometry[:] = odometry
             self.have_odometry = True
+        self._odometry_at_keyframe()
         self._record(stamp)
 
     def _submap_of(self, node, placed: bool = False):
@@ -284,6 +305,10 @@ class FrontEnd:
         wide = self.matcher.align_scans(scan, self.reference, None).pose
         return max((pose, wide), key=lambda p: self._inliers(scan, p))
 
+    def _odometry_at_keyframe(self):
+        self.keyframe_odometry[:] = self.last_odometry
+        self.odometry_since_keyframe = self.have_odometry
+
     def _predicted_motion(self, odometry):
         if odometry is None:  # scans only, or a reading the inbox dropped (docs/runtime.md
             self.have_odometry = False  # §7): the next reading starts odometry afresh
@@ -313,7 +338,10 @@ class FrontEnd:
                 "weak": self.weak, "lost_matches": self.lost_matches,
                 "degenerate_matches": self.degenerate_matches, "status": self.status,
                 "submap_nodes": self._submap_nodes[: self._n_submap].copy(),
-                "submap_poses": self._submap_poses[: self._n_submap].copy()}
+                "submap_poses": self._submap_poses[: self._n_submap].copy(),
+                "keyframe_odometry": self.keyframe_odometry.copy(),
+                "odometry_since_keyframe": self.odometry_since_keyframe,
+                "odometry_noise": self.odometry_noise.state()}
 
     def restore(self, state: dict) -> None:
         """The state :meth:`state` gave, over a front end of the same configuration built on
@@ -335,6 +363,11 @@ class FrontEnd:
         self.lost_matches, self.status = int(state["lost_matches"]), str(state["status"])
         self.degenerate_matches = int(state["degenerate_matches"])
         self.keyframe = int(state["keyframe"])
+        # a session saved before odometry's noise was learnt starts learning it afresh
+        self.keyframe_odometry[:] = state.get("keyframe_odometry", self.last_odometry)
+        self.odometry_since_keyframe = bool(state.get("odometry_since_keyframe", False))
+        if "odometry_noise" in state:
+            self.odometry_noise.restore(state["odometry_noise"])
         if self.keyframe >= 0 and not 0 <= self.keyframe < n:
             raise ValueError(f"keyframe {self.keyframe} is not a stored node")
         members = state.get("submap_nodes", np.zeros(0, np.int64))
