@@ -91,26 +91,30 @@ class OdometryNoise:
     def sigma(self, turn: float) -> float | None:
         """Odometry's heading σ (rad) over a step turning ``turn`` rad, its bias taken out:
         the spread less the match's own share, at least ``floor``; None while unknown."""
+        known = self._bias_and_sigma(turn)
+        return None if known is None else known[1]
+
+    def _bias_and_sigma(self, turn: float) -> tuple[float, float] | None:
         known = self.bias_and_spread(turn)
         if known is None:
             return None
         m = self.match_share(turn)
-        return math.sqrt(max(known[1] ** 2 - m * m, self.floor**2))
+        return known[0], math.sqrt(max(known[1] ** 2 - m * m, self.floor**2))
 
     def fuse(self, z_match, info, z_odometry):
         """The step's edge ``(z, information)``: the match's heading and odometry's weighed
         by their information (the match's from ``info``); ``(z_match, info)`` while odometry's
         σ is not known yet."""
         turn = z_odometry[2]
-        sigma = self.sigma(turn)
-        if sigma is None:
+        known = self._bias_and_sigma(turn)
+        if known is None:
             return np.asarray(z_match, np.float64), info
+        bias, sigma = known
         # in the graph's units: the match's heading information stands for its own σ
         odometry_info = np.zeros((3, 3))
         odometry_info[2, 2] = info[2, 2] * (self.match_share(turn) / sigma) ** 2
         delta = between(np.asarray(z_odometry, np.float64), np.asarray(z_match, np.float64))
         delta[:2] = 0.0  # heading only: the positions stay the match's
-        bias = self.bias_and_spread(turn)[0]
         delta[2] = math.remainder(delta[2] - bias, 2 * math.pi)  # odometry's bias taken out
         fused = info + odometry_info
         step = np.linalg.solve(fused, odometry_info @ delta)
