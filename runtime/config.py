@@ -167,6 +167,14 @@ class MatcherConfig(Section):
     cauchy_scale: float = _setting(0.07, "m, c of the Cauchy kernel", gt=0)
     field_radius: float = _setting(0.5, "m: distances exact below, truncated above", gt=0)
     max_gap: float = _setting(1.0, "m: reference points closer than this form a surface", ge=0)
+    surface_bend: float = _setting(
+        0.0, "rad: neighbours farther apart than max_gap form a surface too when the pairs "
+        "either side continue their line within this bend (a wall far down a corridor, seen "
+        "grazing; docs/method.md §3; 0.05236, 3°, measured); 0: max_gap alone", ge=0,
+        lt=math.pi / 2)
+    surface_gap_ratio: float = _setting(
+        2.0, "... and their gap is at most this many times the shorter of those two pairs' "
+        "(one surface sampled evenly, not a doorway's two sides)", ge=1)
     coarse_resolution: float = _setting(0.1, "m, the global stage's coarse field (0: none)", ge=0)
     coarse_radius: float = _setting(0.6, "m, truncation of the coarse field", gt=0)
     stride: int = _setting(2, "the global stage uses every stride-th point", ge=1)
@@ -307,6 +315,24 @@ class FrontEndConfig(Section):
         (0.0035, 0.014), "rad: the match's own heading σ over a node step (straight, turning): "
         "the share of the match-odometry disagreement that is not odometry's; the edge's heading "
         "information (sigma_rotation) stands for it when odometry's is weighed against it", gt=0)
+    odometry_scale_window: int = _setting(
+        0, "straight node steps whose match pinned every direction that estimate odometry's "
+        "distance scale (their median matched over counted translation), applied where a match "
+        "is degenerate (docs/method.md §6.1; runtime/odometry_scale.py; 100 measured); 0: off",
+        ge=0)
+    odometry_scale_min_steps: int = _setting(
+        5, "such steps seen before the scale is used", ge=1)
+    odometry_scale_min_step: float = _setting(
+        0.2, "m: shorter node steps do not estimate the scale", ge=0)
+    odometry_scale_max_turn: float = _setting(
+        0.02, "rad: node steps turning more do not estimate the scale (a scanner off the "
+        "wheels' axis moves farther in a turn)", ge=0)
+    odometry_scale_dead_zone: float = _setting(
+        0.0075, "the scale is taken as 1 while within this of it: the matches' own scale "
+        "wanders from place to place by about ±0.5% (the simulator's corridors)", ge=0)
+    odometry_scale_confidence: float = _setting(
+        2.0, "... or within this many standard errors of the median (1.4826 MAD / √n) beyond "
+        "the dead zone: a few steps do not move it", ge=0)
 
 
 @dataclass(frozen=True)

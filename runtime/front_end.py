@@ -26,6 +26,7 @@ from runtime.degeneracy import Degeneracy
 from runtime.loop_closure import propagate_covariance
 from runtime.node_scans import NodeScans
 from runtime.odometry_noise import OdometryNoise
+from runtime.odometry_scale import OdometryScale
 from runtime.pose import between, compose, interpolate
 from runtime.pose_graph import ODOMETRY, PoseGraph, information_from_sigma
 from runtime.scan import PointScan
@@ -106,6 +107,13 @@ class FrontEnd:
         self.odometry_noise = OdometryNoise(f.odometry_noise_window, f.odometry_noise_min_steps,
                                             f.odometry_turn_split, f.odometry_sigma_floor,
                                             f.match_heading_sigma)
+        # Odometry's distance scale, learnt from the steps the match pinned and applied where
+        # it could not (runtime.odometry_scale).
+        self.odometry_scale = OdometryScale(
+            f.odometry_scale_window, f.odometry_scale_min_steps, f.odometry_scale_min_step,
+            f.odometry_scale_max_turn, f.odometry_scale_dead_zone, f.odometry_scale_confidence,
+            graph.max_edges)
+        self.slid = False  # a match since the keyframe was held to the prediction somewhere
         self.weak = False  # a match since the last node was replaced by odometry
         self.lost_matches = 0
         self.degenerate_matches = 0  # matches held to the prediction along a direction
@@ -121,6 +129,8 @@ class FrontEnd:
             self._start(scan, odometry, stamp)
             return Tracking(self.graph.poses[0].copy(), True, 0, 0.0)
         step = self._predicted_motion(odometry)
+        if odometry is not None:
+            self.odometry_scale.scale_step(step)
         self.odometry_since_keyframe &= odometry is not None
         guess = compose(self.rel, step)
         match = self.matcher.align_scans(scan, self.reference, guess)  # Alg. 5
@@ -129,6 +139,7 @@ class FrontEnd:
         self.degeneracy = None
         if self.config.front_end.degeneracy_ratio > 0:
             pose = self._constrained(scan, pose, guess)
+            self.slid |= self.degeneracy.degenerate
         if (self._inliers(scan, pose) < self.config.front_end.min_track_inliers
                 or (odometry is not None
                     and contradicts_odometry(pose, guess, step, self.config.front_end))):
@@ -158,14 +169,18 @@ class FrontEnd:
         if self.degeneracy is not None:  # the edge is the last match: weak where it slid
             info = self.degeneracy.information(info)
         z = self.rel
+        z_odometry = None
         if self.odometry_since_keyframe:  # odometry's heading over the step, by its record
             z_odometry = between(self.last_odometry, self.keyframe_odometry)
             if not self.weak:  # the match held: its disagreement with odometry is a sample
                 self.odometry_noise.add(self.rel, z_odometry)
             z, info = self.odometry_noise.fuse(self.rel, info, z_odometry)
+        if z_odometry is not None:  # before the weak step is forgotten
+            self._learn_scale(g.n_edges, z_odometry)
         if self.weak:
             info = info / c.weak_information_factor
             self.weak = False
+        self.slid = False
         node = g.add_node(compose(g.poses[previous], z), stamp)
         g.add_edge(previous, node, z, info, ODOMETRY)
         cov = self.nodes.cov
@@ -278,6 +293,19 @@ class FrontEnd:
         return self.nodes.place(self._submap_poses, self._submap_nodes[:m], m - 1,
                                 self._submap, rows=range(m))
 
+    def _learn_scale(self, edge: int, z_odometry) -> None:
+        """A node step's lesson on odometry's distance scale (runtime.odometry_scale): one
+        the match pinned throughout estimates it; one whose last match was held to the
+        prediction along an axis is marked, to follow the scale as it is learnt."""
+        scale = self.odometry_scale
+        if not scale.enabled:
+            return
+        if self.degeneracy is not None and self.degeneracy.degenerate:
+            scale.mark_edge(edge, self.degeneracy.axis, z_odometry, scale.scale)
+        elif not (self.slid or self.weak):
+            scale.add_step(self.rel, z_odometry)
+        scale.rescale(self.graph.z, self.graph.n_edges)
+
     def _inliers(self, scan, pose) -> float:
         c = self.config.front_end
         return self.matcher.inlier_fraction(scan, self.reference, pose, c.track_inlier_distance,
@@ -341,7 +369,8 @@ class FrontEnd:
                 "submap_poses": self._submap_poses[: self._n_submap].copy(),
                 "keyframe_odometry": self.keyframe_odometry.copy(),
                 "odometry_since_keyframe": self.odometry_since_keyframe,
-                "odometry_noise": self.odometry_noise.state()}
+                "odometry_noise": self.odometry_noise.state(), "slid": self.slid,
+                "odometry_scale": self.odometry_scale.state(self.graph.n_edges)}
 
     def restore(self, state: dict) -> None:
         """The state :meth:`state` gave, over a front end of the same configuration built on
@@ -368,6 +397,9 @@ class FrontEnd:
         self.odometry_since_keyframe = bool(state.get("odometry_since_keyframe", False))
         if "odometry_noise" in state:
             self.odometry_noise.restore(state["odometry_noise"])
+        self.slid = bool(state.get("slid", False))
+        if "odometry_scale" in state:  # a session saved before it learns the scale afresh
+            self.odometry_scale.restore(state["odometry_scale"])
         if self.keyframe >= 0 and not 0 <= self.keyframe < n:
             raise ValueError(f"keyframe {self.keyframe} is not a stored node")
         members = state.get("submap_nodes", np.zeros(0, np.int64))

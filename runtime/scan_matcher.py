@@ -325,6 +325,8 @@ class ScanMatcher:
             inv_c2,
             ref.field,
             ref.meta,
+            c.surface_bend,
+            c.surface_gap_ratio,
         )
         if c.coarse_resolution > 0:
             build_distance_field(
@@ -336,6 +338,8 @@ class ScanMatcher:
                 0.0,
                 ref.coarse_field,
                 ref.coarse_meta,
+                c.surface_bend,
+                c.surface_gap_ratio,
             )
         if c.scan_to_map:
             build_local_map(

@@ -182,6 +182,7 @@ def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, s
         "loops_rejected_consistency": slam.back_end.loops.rejected_consistency,
         "matches_recovered": slam.front_end.lost_matches,
         "matches_degenerate": slam.front_end.degenerate_matches,
+        "odometry_scale": slam.front_end.odometry_scale.scale,  # learnt (1: not, or within doubt)
         **timing,
         "status": runtime.status,
         "runtime": runtime.report(),

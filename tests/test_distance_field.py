@@ -6,10 +6,12 @@ from scipy.spatial import cKDTree
 from runtime.distance_field import N_META, NX, NY, build_distance_field, field_lookup
 
 
-def build(points, res=0.05, radius=0.5, gap=0.0, cells=512, inv_c2=0.0):
+def build(points, res=0.05, radius=0.5, gap=0.0, cells=512, inv_c2=0.0, bend=0.0,
+          gap_ratio=2.0):
     field = np.zeros((cells, cells), np.float32)
     meta = np.zeros(N_META)
-    build_distance_field(points, len(points), res, radius, gap, inv_c2, field, meta)
+    build_distance_field(points, len(points), res, radius, gap, inv_c2, field, meta, bend,
+                         gap_ratio)
     return field, meta
 
 
@@ -41,6 +43,43 @@ def test_surface_joins_close_neighbours_only():
     assert field_lookup(f1, m1, *q) < 1e-3  # on the joined surface
     f2, m2 = build(wall, gap=0.4)  # gap too small to join
     assert field_lookup(f2, m2, *q) > 0.05
+
+
+def grazing_wall(beams=7):
+    """The end points of beams 1° apart from 2° on a wall 1 m to the side: seen grazing, they
+    lie 9.6 m down to 1.03 m apart."""
+    bearing = np.radians(2.0 + np.arange(beams))
+    return np.c_[1.0 / np.tan(bearing), np.ones(beams)]
+
+
+def test_a_wall_seen_grazing_is_one_surface_though_its_points_lie_metres_apart():
+    wall = grazing_wall()
+    gaps = np.hypot(*np.diff(wall, axis=0).T)
+    assert gaps.min() > 1.0  # every pair beyond max_gap
+    inner = 0.5 * (wall[3] + wall[4])  # on the wall between two end points, 1.9 m apart
+    f0, m0 = build(wall, gap=1.0, cells=1024)
+    f1, m1 = build(wall, gap=1.0, cells=1024, bend=np.radians(3.0))
+    assert field_lookup(f0, m0, *inner) > 0.2  # bare points: the radius² far
+    assert field_lookup(f1, m1, *inner) < 1e-3  # joined
+    # the two end pairs have no pair beyond them to continue: they stay apart
+    outer = 0.5 * (wall[0] + wall[1])
+    assert field_lookup(f1, m1, *outer) > 0.2
+
+
+def test_a_jump_in_depth_or_a_doorway_is_not_joined():
+    bend = np.radians(3.0)
+    # from a wall 1 m to the side to one 3 m to the side: the pair across turns off both lines
+    jump = np.array([[12.0, 1.0], [10.0, 1.0], [7.0, 3.0], [5.0, 3.0]])
+    f, m = build(jump, gap=1.0, bend=bend)
+    assert field_lookup(f, m, 8.5, 2.0) > 0.2
+    f, m = build(jump, gap=1.0, bend=np.radians(89.0))  # any bend allowed: joined
+    assert field_lookup(f, m, 8.5, 2.0) < 1e-3
+    # a doorway in a wall seen square on: the line continues, the spacing does not
+    wall = np.c_[[0.0, 0.3, 0.6, 2.6, 2.9, 3.2], np.full(6, 2.0)]
+    f, m = build(wall, gap=1.0, bend=bend)
+    assert field_lookup(f, m, 1.6, 2.0) > 0.2
+    f, m = build(wall, gap=1.0, bend=bend, gap_ratio=10.0)  # evenly enough at 10×: joined
+    assert field_lookup(f, m, 1.6, 2.0) < 1e-3
 
 
 def test_window_is_capped_at_capacity():

@@ -28,6 +28,7 @@ from scripts.bench.generalization import (
 from scripts.carmen import read_carmen
 from scripts.relations import read_relations
 from scripts.simlog import log_text, sample_relations, write_simlog
+from survey_slam import slam_over
 from swarmslam_sim.survey import Site, run_survey, site
 
 
@@ -39,12 +40,7 @@ def loop_run():
     route = place.route[:6].copy()
     route[-1] = route[0] + (12.0, 0.0)  # past the start again: the revisit
     survey = run_survey(Site(place.world, route), "sick-1", 5.0, "biased", seed=0)
-    slam = GraphSlam(SlamConfig(), seed=0)
-    scan = PointScan(400)
-    for t, odo, ranges in zip(survey.stamps, survey.odometry, survey.ranges):
-        scan.set_ranges(ranges, survey.angles, 0.05, survey.lidar.max_range)
-        slam.step(scan, odo, float(t))
-    return survey, slam
+    return survey, slam_over(survey, SlamConfig())
 
 
 def _truth_in_map_frame(survey):

@@ -9,9 +9,8 @@ import pytest
 
 from runtime.config import SlamConfig, override
 from runtime.odometry_noise import OdometryNoise
-from runtime.pose import between, compose
-from runtime.scan import PointScan
-from runtime.slam import GraphSlam
+from runtime.pose import compose
+from survey_slam import node_steps, slam_over
 from swarmslam_sim.survey import SCANNERS, OdometryModel, Site, run_survey, site
 
 STRAIGHT = np.array([0.5, 0.0, 0.0])
@@ -110,16 +109,8 @@ def test_state_round_trip_continues_the_same_estimate():
 
 def _node_heading_errors(survey, window: int):
     """|heading error| of each node step of a run (its graph against the truth)."""
-    config = override(SlamConfig(), {"front_end.odometry_noise_window": window})
-    slam = GraphSlam(config, seed=0)
-    scan = PointScan(400)
-    for t, odo, ranges in zip(survey.stamps, survey.odometry, survey.ranges):
-        scan.set_ranges(ranges, survey.angles, 0.05, survey.lidar.max_range)
-        slam.step(scan, odo, float(t))
-    g = slam.graph
-    k = np.searchsorted(survey.stamps, g.stamps[: g.n_nodes])
-    est = between(g.poses[1 : g.n_nodes], g.poses[: g.n_nodes - 1])
-    ref = between(survey.true_poses[k[1:]], survey.true_poses[k[:-1]])
+    slam = slam_over(survey, override(SlamConfig(), {"front_end.odometry_noise_window": window}))
+    est, ref = node_steps(slam, survey)
     return np.abs(np.angle(np.exp(1j * (est[:, 2] - ref[:, 2])))), slam
 
 
