@@ -46,6 +46,13 @@ from runtime.pose import between, compose
 MAD_TO_SIGMA = 1.4826  # σ of a normal distribution over its median absolute deviation
 
 
+def median_and_spread(values) -> tuple[float, float]:
+    """The median of ``values`` and their robust σ about it (1.4826 × the median absolute
+    deviation): a few wild samples move neither."""
+    median = float(np.median(values))
+    return median, MAD_TO_SIGMA * float(np.median(np.abs(values - median)))
+
+
 class OdometryNoise:
     """Odometry's heading bias and σ over a node step, from the last ``window`` steps of each
     kind (straight, or turning more than ``turn_split`` rad left or right); σ at least
@@ -80,9 +87,7 @@ class OdometryNoise:
         n = min(int(self.counts[k]), self.window)
         if self.window <= 0 or n < self.min_steps:
             return None
-        r = self.residuals[k, :n]
-        bias = float(np.median(r))
-        return bias, MAD_TO_SIGMA * float(np.median(np.abs(r - bias)))
+        return median_and_spread(self.residuals[k, :n])
 
     def match_share(self, turn: float) -> float:
         """The match's own heading σ (rad) over a step turning ``turn`` (the prior)."""

@@ -42,7 +42,7 @@ import math
 import numpy as np
 from numba import njit
 
-from runtime.odometry_noise import MAD_TO_SIGMA
+from runtime.odometry_noise import median_and_spread
 
 
 @njit(cache=True)
@@ -97,9 +97,7 @@ class OdometryScale:
         self.count += 1
         n = min(self.count, self.window)
         if n >= self.min_steps:
-            ratios = self.ratios[:n]
-            median = float(np.median(ratios))
-            spread = MAD_TO_SIGMA * float(np.median(np.abs(ratios - median)))
+            median, spread = median_and_spread(self.ratios[:n])
             doubt = self.dead_zone + self.confidence * spread / math.sqrt(n)
             self.scale = median if abs(median - 1.0) > doubt else 1.0
 

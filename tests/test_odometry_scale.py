@@ -97,7 +97,7 @@ def test_a_session_file_keeps_what_was_learnt(tmp_path):
 
 
 def _corridor_lengths(window: int):
-    """A plain corridor's first two legs (the ring of `corridor`, 360° RPLidar A1 reaching 12 m
+    """One lap of a ring of plain corridors (`corridor`, 132 m; 360° RPLidar A1 reaching 12 m
     at 5.5 Hz) on odometry whose right wheel is 2% larger than believed: the graph's node
     steps against the true ones, and the run."""
     place = site("corridor", seed=1)
