@@ -293,10 +293,10 @@ class BackEnd:
             degeneracy = Degeneracy(h, ratio, fc.degenerate_information)
             pose = degeneracy.remap(pose, guess)
             # An ordinary search's guess is the graph's own estimate: along the axis the edge
-            # repeats it rather than measuring it, and may pin the drift it holds (Intel's
-            # first corridor, 0.87 m); 'floor' frees it, at a cost (docs/method.md §5, step 3).
+            # repeats it rather than measuring it, and would pin the drift it holds (Intel's
+            # first corridor, 0.87 m); the floor frees it (docs/method.md §5, step 3).
             floor = c.degenerate_share == "floor" and not proposal
-            share = fc.degenerate_information if floor else None
+            share = c.degenerate_information if floor else None
             self.z_info[:] = degeneracy.information(self.z_info, share)
         if proposal:
             return pose  # the wide search's own tests stand (runtime/wide_loop_search.py)

@@ -168,10 +168,9 @@ class MatcherConfig(Section):
     field_radius: float = _setting(0.5, "m: distances exact below, truncated above", gt=0)
     max_gap: float = _setting(1.0, "m: reference points closer than this form a surface", ge=0)
     surface_bend: float = _setting(
-        0.0, "rad: neighbours farther apart than max_gap form a surface too when the pairs "
-        "either side continue their line within this bend (a wall far down a corridor, seen "
-        "grazing; docs/method.md §3; 0.05236, 3°, measured); 0: max_gap alone", ge=0,
-        lt=math.pi / 2)
+        0.05236, "rad (3°): neighbours farther apart than max_gap form a surface too when the "
+        "pairs either side continue their line within this bend (a wall far down a corridor, "
+        "seen grazing; docs/method.md §3); 0: max_gap alone", ge=0, lt=math.pi / 2)
     surface_gap_ratio: float = _setting(
         2.0, "... and their gap is at most this many times the shorter of those two pairs' "
         "(one surface sampled evenly, not a doorway's two sides)", ge=1)
@@ -209,8 +208,8 @@ class MatcherConfig(Section):
     def paper(cls, optimizer: str = "abc", **overrides) -> MatcherConfig:
         """The paper's matcher: Eq. 14 on a single field, the swarm halted by its own rules."""
         base = dict(swarm=SwarmConfig(optimizer=optimizer), kernel="paper", field_radius=1.0,
-                    coarse_resolution=0.0, stride=1, refine_evaluations=0, polish_evaluations=0,
-                    scan_to_map=True)
+                    surface_bend=0.0, coarse_resolution=0.0, stride=1, refine_evaluations=0,
+                    polish_evaluations=0, scan_to_map=True)
         base.update(overrides)
         return cls(**base)
 
@@ -379,10 +378,14 @@ class LoopClosureConfig(Section):
         (2.0, 2.0, 0.5), "largest half-widths: between the two, the box spans 3σ of the "
         "propagated relative pose", gt=0)
     degenerate_share: str = _setting(
-        "curvature", "information a loop edge keeps along a degenerate direction, where the "
-        "graph's estimate stood in: the share the curvature supports, or the floor "
-        "(front_end.degenerate_information; a wide search's proposal keeps the curvature's)",
+        "floor", "information a loop edge keeps along a degenerate direction, where the "
+        "graph's estimate stood in: the floor below, or the share the curvature supports (a "
+        "wide search's proposal keeps the curvature's; docs/method.md §5, step 3)",
         choices=DEGENERATE_SHARES)
+    degenerate_information: float = _setting(
+        0.01, "the floor: the share of its information an ordinary loop edge keeps along a "
+        "degenerate direction, where its value is the graph's own estimate, not a measurement",
+        gt=0, le=1)
     # The wide search after a long drift (runtime/wide_loop_search.py; docs/method.md §5).
     wide_after: int = _setting(
         10, "nodes since the last kept closure after which a node whose ordinary search found "

@@ -239,8 +239,9 @@ def test_a_loop_edge_in_a_corridor_keeps_the_share_of_information_its_setting_na
     # The graph puts the revisit 0.5 m along the corridor from the first pass, where the scans
     # say it is at the same place. A door's stub lets the match pin the axis weakly; the
     # ordinary loop search's guess (the graph's estimate) stands in along the axis. By default
-    # the edge keeps there the share the curvature supports, and holds the 0.5 m drift in place;
-    # with degenerate_share = 'floor' it keeps only the floor and leaves the drift free.
+    # (degenerate_share = 'floor') the edge keeps there only the floor and leaves the drift
+    # free; with 'curvature' it keeps the share the curvature supports, and holds the 0.5 m
+    # drift in place.
     xs = np.linspace(-12, 12, 241)
     stub = np.c_[np.full(7, 3.0), np.linspace(1.0, 1.3, 7)]
     scan = PointScan.from_points(np.r_[np.c_[xs, np.ones_like(xs)],
@@ -249,7 +250,7 @@ def test_a_loop_edge_in_a_corridor_keeps_the_share_of_information_its_setting_na
     floor = 0.01  # a floor well below the curvature's share, so that the two differ
     for share in ("curvature", "floor"):
         config = override(SlamConfig(), {"loop_closure.degenerate_share": share,
-                                         "front_end.degenerate_information": floor})
+                                         "loop_closure.degenerate_information": floor})
         slam = GraphSlam(config, seed=0)
         for k, x in enumerate((0.0, 0.5)):
             slam.graph.add_node(np.array([x, 0.0, 0.0]))

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from runtime.config import SwarmConfig
+from runtime.distance_field import R2, field_lookup
 from runtime.objectives import KERNELS, scan_to_scan_error
 from runtime.pose import between
 from runtime.scan import PointScan
@@ -67,6 +68,21 @@ def test_robust_kernel_beats_paper_form_under_partial_overlap():
         errors[name] = np.hypot(e[0], e[1])
     assert errors["paper"] < 0.15
     assert errors["cauchy"] < errors["paper"] / 2, errors
+
+
+def test_the_default_reference_joins_a_wall_seen_grazing_and_the_papers_form_does_not():
+    # End points of beams 1° apart on a wall 1 m to the side, 9.6 m down to 1.03 m apart: every
+    # pair is farther apart than max_gap, yet they are one surface (docs/method.md §3).
+    bearing = np.radians(2.0 + np.arange(7))
+    wall = PointScan.from_points(np.c_[1.0 / np.tan(bearing), np.ones(7)])
+    between_ends = 0.5 * (wall.points[3] + wall.points[4])  # on the wall, the two 1.9 m apart
+    share = {}  # of the cost of a place no surface is near
+    for name, config in [("default", MatcherConfig()), ("paper", MatcherConfig.paper("abc"))]:
+        m = ScanMatcher(config, seed=0)
+        ref = m.build_reference(wall)
+        share[name] = field_lookup(ref.field, ref.meta, *between_ends) / ref.meta[R2]
+    assert share["default"] < 0.01
+    assert share["paper"] > 0.8  # Eq. 14's d² to the nearest end point, 0.95 m away
 
 
 def test_same_seed_same_match_bit_for_bit():
