@@ -14,11 +14,11 @@ motion along the corridor was: half the ACES keyframe failures were that.
 Far down a corridor the same holds for neighbours farther apart than ``max_gap``: a wall seen
 grazing has its end points metres apart, and as bare points they pull every match towards "no
 motion" along the corridor (the simulator's ring of plain corridors comes out 0.45% short, its
-odometry true to 2e-5). So, opt-in (``bend`` > 0), a pair farther apart is joined too when it
-*continues a line*: the pairs either side of it (one point further each way) run within
-``bend`` of its own direction, and its gap is at most ``gap_ratio`` times the shorter of
-theirs — one surface sampled beam by beam. A jump in depth or a corner breaks the line and
-stays open (docs/method.md §3: what it gains, and why it is off by default).
+odometry true to 2e-5). So, with ``bend`` > 0 (the matcher's default is 3°), a pair farther
+apart is joined too when it *continues a line*: the pairs either side of it (one point further
+each way) run within ``bend`` of its own direction, and its gap is at most ``gap_ratio`` times
+the shorter of theirs — one surface sampled beam by beam. A jump in depth or a corner breaks
+the line and stays open (docs/method.md §3: what it gains, and what it cost alone).
 
 Building must cost less than a match, so the field is *truncated*: each reference point writes
 the exact squared distance into the cells within ``radius`` of it, and every other cell holds

@@ -169,14 +169,12 @@ class FrontEnd:
         if self.degeneracy is not None:  # the edge is the last match: weak where it slid
             info = self.degeneracy.information(info)
         z = self.rel
-        z_odometry = None
         if self.odometry_since_keyframe:  # odometry's heading over the step, by its record
             z_odometry = between(self.last_odometry, self.keyframe_odometry)
             if not self.weak:  # the match held: its disagreement with odometry is a sample
                 self.odometry_noise.add(self.rel, z_odometry)
             z, info = self.odometry_noise.fuse(self.rel, info, z_odometry)
-        if z_odometry is not None:  # before the weak step is forgotten
-            self._learn_scale(g.n_edges, z_odometry)
+            self._learn_scale(g.n_edges, z_odometry)  # before the weak step is forgotten
         if self.weak:
             info = info / c.weak_information_factor
             self.weak = False
