@@ -465,9 +465,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     re_ = sub.add_parser("relations", help="relations files (Kümmerle et al.)")
     resub = re_.add_subparsers(dest="relations_command", required=True)
-    au = resub.add_parser("audit", help="check each relation against the log's own scans; "
-                                        "with a trajectory, score it apart on the relations "
-                                        "the scans confirm and those they contradict")
+    au = resub.add_parser("audit", help="check each relation against the log's own scans "
+                                        "and tell whose clock (the scans' or odometry's) its "
+                                        "headings keep; with a trajectory, score it apart on "
+                                        "the relations the scans confirm and those they "
+                                        "contradict, and again on the reference's clock")
     au.add_argument("log", help="the CARMEN log the relations refer to")
     au.add_argument("relations", help="Kümmerle relations file")
     au.add_argument("--trajectory", help="a TUM trajectory of the log to score (e.g. a "

@@ -12,6 +12,8 @@ relation whose scans do not overlap cannot be checked and is never flagged.
 
 Scored apart on the relations the scans confirm and on those they contradict, a trajectory
 shows how much of its relation error is the reference's own: an error there is not the SLAM's.
+The audit also tells whose clock the reference's headings keep, the scans' or odometry's, and
+scores the trajectory again on that clock (scripts/relations_clock.py).
 
     >>> import numpy as np
     >>> from scripts.relations import Relations
@@ -43,6 +45,7 @@ from scripts.metrics import LOCAL_GAP, kummerle, match_relations, relation_error
 from scripts.plots import relations_audit_figure, require_matplotlib
 from scripts.progress import Progress
 from scripts.relations import Relations, read_relations
+from scripts.relations_clock import AGREEMENT_DEG, reference_clock
 from scripts.replay import robot_frame_scan
 from scripts.tum import read_tum
 
@@ -124,14 +127,16 @@ def audit_scans(scans, stamps, relations: Relations, inlier_distance: float = IN
     return Audit(checked, fit, fit_aligned, correction, contradicted, min_gain)
 
 
-def log_scans(log_path) -> tuple[list[np.ndarray], np.ndarray]:
-    """Every laser record's valid points in the robot's frame, and its timestamp."""
+def log_scans(log_path) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    """Every laser record's valid points in the robot's frame, its timestamp and the odometry
+    stamped with it."""
     lasers = read_carmen(log_path).lasers
     scans = []
     for record in lasers:
         scan = robot_frame_scan(record, PointScan(len(record.ranges)))
         scans.append(scan.buffer[: scan.count].copy())
-    return scans, np.array([r.timestamp for r in lasers], dtype=np.float64)
+    return (scans, np.array([r.timestamp for r in lasers], dtype=np.float64),
+            np.array([r.odometry for r in lasers], dtype=np.float64).reshape(-1, 3))
 
 
 def scored_apart(stamps, poses, relations: Relations, audit: Audit) -> dict:
@@ -152,14 +157,15 @@ def scored_apart(stamps, poses, relations: Relations, audit: Audit) -> dict:
 
 def audit_command(log_path, relations_path, trajectory_path=None, json_path=None,
                   min_gain: float = MIN_GAIN, plots=None) -> dict:
-    """The audit of ``relations_path`` against ``log_path``'s scans, printed; with a TUM
-    ``trajectory_path``, that trajectory scored apart (:func:`scored_apart`); ``plots``: a
-    folder for the figure."""
+    """The audit of ``relations_path`` against ``log_path``'s scans and the reference's clock
+    (``clock``: scripts.relations_clock.reference_clock), printed; with a TUM
+    ``trajectory_path``, that trajectory scored apart (:func:`scored_apart`) and on the
+    reference's clock; ``plots``: a folder for the figure."""
     if plots:
         require_matplotlib()
     relations = read_relations(relations_path)
     stamps, poses = read_tum(trajectory_path) if trajectory_path else (None, None)
-    scans, scan_stamps = log_scans(log_path)
+    scans, scan_stamps, odometry = log_scans(log_path)
     progress = Progress(len(relations), "audit")
     audit = audit_scans(scans, scan_stamps, relations, min_gain=min_gain, progress=progress)
     progress.close()
@@ -182,6 +188,19 @@ def audit_command(log_path, relations_path, trajectory_path=None, json_path=None
                 line += (f"; local eT {s['eT_local']:.4f} m, eR {s['eR_local_deg']:.3f}° "
                          f"({s['relations_local']})")
             print(line)
+    clock = reference_clock(scan_stamps, odometry, relations,
+                            (stamps, poses) if trajectory_path else None)
+    result["clock"] = clock
+    print(f"  clock: odometry's heading error over a local relation rises "
+          f"{clock['odometry_slope_ms']:.1f} ms × the change of its turn rate (correlation "
+          f"{clock['odometry_correlation']:.2f}); {clock['odometry_agreement']:.0%} of the local "
+          f"relations agree with odometry's heading within {AGREEMENT_DEG}°")
+    if trajectory_path:
+        moved = clock["on_reference_clock"]
+        print(f"  clock: the trajectory's {clock['trajectory_slope_ms']:.1f} ms (correlation "
+              f"{clock['trajectory_correlation']:.2f}; {clock['trajectory_agreement']:.0%} within "
+              f"{AGREEMENT_DEG}°); moved by odometry over that time: eR {moved['eR_deg']:.3f}°"
+              + (f", local {moved['eR_local_deg']:.3f}°" if "eR_local_deg" in moved else ""))
     if plots:
         e_r = None
         if trajectory_path:

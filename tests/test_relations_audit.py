@@ -5,6 +5,7 @@ import gzip
 import json
 
 import numpy as np
+import pytest
 
 import scripts.relations_audit as relations_audit
 from runtime.pose import between, compose
@@ -63,7 +64,12 @@ def test_true_relations_pass_and_displaced_ones_are_flagged_and_scored_apart(tmp
     confirmed, contradicted = scores["confirmed"], scores["contradicted"]
     assert confirmed["eT"] < 1e-3 and confirmed["relations_used"] == (~wrong).sum()
     assert contradicted["eT"] > 0.4 and contradicted["relations_used"] == wrong.sum()
-    assert "contradicted" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "contradicted" in printed and "clock: the trajectory's" in printed
+    # the true trajectory, on the reference's clock, has no slope; odometry (= truth) agrees
+    # with every relation but the displaced ones
+    assert abs(result["clock"]["trajectory_slope_ms"]) < 0.01  # (the TUM file rounds)
+    assert result["clock"]["odometry_agreement"] == pytest.approx((~wrong).mean())
 
 
 def test_a_relation_naming_a_scan_the_log_lacks_is_not_checked(tmp_path):

@@ -1,0 +1,73 @@
+"""On whose clock a relations file's headings are (scripts/relations_clock.py)."""
+
+import doctest
+
+import numpy as np
+import pytest
+
+import scripts.relations_clock as relations_clock
+from runtime.pose import between
+from scripts.relations import Relations
+from scripts.relations_clock import heading_slope, reference_clock
+
+LATENCY = 0.04  # s
+
+
+def turning_run(seed=0):
+    """A robot driving 0.5 m/s and weaving (turn rate up to 0.6 rad/s) at 10 Hz: its true
+    poses and stamps, and local relations 0.5–20 s apart."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 120.0, 0.1)
+    omega = 0.6 * np.sin(0.7 * t) * np.sin(0.11 * t)
+    heading = np.cumsum(omega) * 0.1
+    xy = np.cumsum(0.05 * np.c_[np.cos(heading), np.sin(heading)], axis=0)
+    poses = np.c_[xy, heading]
+    i = rng.integers(0, len(t) - 200, 400)
+    j = i + rng.integers(5, 200, 400)
+    return t, poses, omega, i, j
+
+
+def later(poses, omega, delay):
+    """Each pose ``delay`` seconds after its stamp (turned by ω × delay; the few millimetres it
+    moved left aside: the clock is read off the heading)."""
+    out = poses.copy()
+    out[:, 2] += omega * delay
+    return out
+
+
+def relations_from(t, poses, i, j):
+    return Relations(t[i], t[j], between(poses[j], poses[i]))
+
+
+def test_the_modules_example_runs_as_written():
+    result = doctest.testmod(relations_clock)
+    assert result.attempted > 0 and result.failed == 0
+
+
+def test_a_reference_on_odometrys_clock_shows_a_scan_trajectorys_latency():
+    t, truth, omega, i, j = turning_run()
+    relations = relations_from(t, truth, i, j)  # made from poses at the stamps, as odometry is
+    scans = later(truth, omega, LATENCY)  # a SLAM placing each scan where its geometry was
+    clock = reference_clock(t, truth, relations, (t, scans))
+    assert abs(clock["odometry_slope_ms"]) < 1.0 and clock["odometry_agreement"] == 1.0
+    assert clock["trajectory_slope_ms"] == pytest.approx(1e3 * LATENCY, rel=0.05)
+    assert clock["trajectory_correlation"] > 0.99
+    _, _, before = heading_slope(t, truth, relations, scans[:, 2])
+    moved = clock["on_reference_clock"]
+    assert moved["eR_deg"] < 0.05 * np.degrees(np.nanmean(np.abs(before)))
+
+
+def test_a_reference_on_the_scans_clock_shows_odometrys_latency_and_not_the_trajectorys():
+    t, truth, omega, i, j = turning_run(seed=1)
+    scans = later(truth, omega, LATENCY)
+    relations = relations_from(t, scans, i, j)  # made by matching the scans
+    clock = reference_clock(t, truth, relations, (t, scans))  # odometry: poses at the stamps
+    assert clock["odometry_slope_ms"] == pytest.approx(-1e3 * LATENCY, rel=0.05)
+    assert abs(clock["trajectory_slope_ms"]) < 1.0
+    assert clock["on_reference_clock"]["eR_deg"] < 1e-3  # nothing to move
+
+
+def test_a_trajectory_of_another_log_is_refused_by_name():
+    t, truth, _, i, j = turning_run()
+    with pytest.raises(ValueError, match="not the log's"):
+        reference_clock(t, truth, relations_from(t, truth, i, j), (t + 0.05, truth))
