@@ -48,6 +48,17 @@ def turn_rates(stamps, odometry) -> np.ndarray:
     return between(odometry[after], odometry[before]) / dt[:, None]
 
 
+def nearest(stamps, queries) -> np.ndarray:
+    """The index of the stamp nearest each query (``stamps`` in any order)."""
+    order = np.argsort(stamps, kind="stable")
+    ordered = stamps[order]
+    if len(ordered) == 1:
+        return np.zeros(len(queries), np.int64)
+    i = np.clip(np.searchsorted(ordered, queries), 1, len(ordered) - 1)
+    below = np.abs(ordered[i - 1] - queries) <= np.abs(ordered[i] - queries)
+    return order[np.where(below, i - 1, i)]
+
+
 def _wrap(angle):
     return np.remainder(angle + np.pi, 2 * np.pi) - np.pi
 
@@ -88,7 +99,7 @@ def reference_clock(stamps, odometry, relations, trajectory=None) -> dict:
     if trajectory is None:
         return out
     t_stamps, poses = trajectory
-    at = np.clip(np.searchsorted(stamps, t_stamps), 0, len(stamps) - 1)
+    at = nearest(stamps, t_stamps)
     on_log = np.abs(stamps[at] - t_stamps) < 1e-4
     if not np.all(on_log):
         raise ValueError(f"{int((~on_log).sum())} of the trajectory's stamps are not the log's "

@@ -71,3 +71,12 @@ def test_a_trajectory_of_another_log_is_refused_by_name():
     t, truth, _, i, j = turning_run()
     with pytest.raises(ValueError, match="not the log's"):
         reference_clock(t, truth, relations_from(t, truth, i, j), (t + 0.05, truth))
+
+
+def test_a_trajectory_stamped_a_hair_after_its_scans_is_still_the_logs():
+    t, truth, _, i, j = turning_run()
+    relations = relations_from(t, truth, i, j)
+    clock = reference_clock(t, truth, relations, (t + 5e-5, truth))  # a rounding's worth late
+    assert abs(clock["trajectory_slope_ms"]) < 1.0
+    order = np.r_[len(t) - 1, np.arange(len(t) - 1)]  # the log's scans out of order
+    assert np.array_equal(relations_clock.nearest(t[order], t[:3]), [1, 2, 3])
