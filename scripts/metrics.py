@@ -43,25 +43,28 @@ def is_failure(e_trans, e_rot, max_trans: float = 0.3, max_rot: float = 0.1):
 LOCAL_GAP = 300.0  # s: relations with endpoints closer in time are "local" (datasets README)
 
 
+def nearest_stamps(stamps, times, tolerance: float = 1e-4):
+    """For each of ``times``, the index into ``stamps`` (in any order) of the nearest stamp,
+    and whether it lies within ``tolerance`` s: ``(index, ok)``."""
+    stamps = np.asarray(stamps, dtype=np.float64)
+    times = np.asarray(times, dtype=np.float64)
+    if len(stamps) == 0:
+        return np.zeros(len(times), np.int64), np.zeros(len(times), bool)
+    order = np.argsort(stamps)
+    sorted_stamps = stamps[order]
+    k = np.clip(np.searchsorted(sorted_stamps, times), 1, max(len(sorted_stamps) - 1, 1))
+    k = np.minimum(k, len(sorted_stamps) - 1)
+    k = np.where(np.abs(sorted_stamps[k - 1] - times) < np.abs(sorted_stamps[k] - times),
+                 k - 1, k)
+    return order[k], np.abs(sorted_stamps[k] - times) <= tolerance
+
+
 def match_relations(stamps, relations, tolerance: float = 1e-4):
     """For each relation, the indices into ``stamps`` of its two ends and whether both are
     there (within ``tolerance`` s): ``(i, j, ok)``."""
-    stamps = np.asarray(stamps, dtype=np.float64)
-    order = np.argsort(stamps)
-    sorted_stamps = stamps[order]
-
-    def lookup(t):
-        if len(sorted_stamps) == 0:
-            return np.zeros(len(t), np.int64), np.zeros(len(t), bool)
-        k = np.clip(np.searchsorted(sorted_stamps, t), 1, max(len(sorted_stamps) - 1, 1))
-        k = np.minimum(k, len(sorted_stamps) - 1)
-        k = np.where(np.abs(sorted_stamps[k - 1] - t) < np.abs(sorted_stamps[k] - t), k - 1, k)
-        ok = np.abs(sorted_stamps[k] - t) <= tolerance
-        return order[k], ok
-
-    i, ok1 = lookup(relations.t1)
-    j, ok2 = lookup(relations.t2)
-    return i, j, ok1 & ok2
+    n = len(relations.t1)
+    k, ok = nearest_stamps(stamps, np.r_[relations.t1, relations.t2], tolerance)
+    return k[:n], k[n:], ok[:n] & ok[n:]
 
 
 def relation_errors(stamps, poses, relations, tolerance: float = 1e-4):

@@ -24,7 +24,8 @@ error was the clock.
     >>> late = heading + 0.03 * omega                             # scans 30 ms after the stamp
     >>> steps = np.c_[np.zeros((len(t) - 5, 2)), heading[5:] - heading[:-5]]
     >>> relations = Relations(t[:-5], t[5:], steps)                # the truth, on odometry's clock
-    >>> round(heading_slope(t, odometry, relations, late)[0] * 1000)   # ms
+    >>> rates = turn_rates(t, odometry)[:, 2]
+    >>> round(heading_slope(t, rates, relations, late)[0] * 1000)      # ms
     30
 """
 
@@ -32,8 +33,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from runtime.pose import between, compose
-from scripts.metrics import LOCAL_GAP, kummerle, match_relations
+from runtime.pose import between, compose, wrap_angle
+from scripts.metrics import LOCAL_GAP, kummerle, match_relations, nearest_stamps
 
 MAX_ERROR_DEG = 3.0  # a relation's heading error beyond this is a failure, not a clock: left out
 AGREEMENT_DEG = 0.1  # a relation's heading within this of odometry's agrees with odometry
@@ -48,33 +49,17 @@ def turn_rates(stamps, odometry) -> np.ndarray:
     return between(odometry[after], odometry[before]) / dt[:, None]
 
 
-def nearest(stamps, queries) -> np.ndarray:
-    """The index of the stamp nearest each query (``stamps`` in any order)."""
-    order = np.argsort(stamps, kind="stable")
-    ordered = stamps[order]
-    if len(ordered) == 1:
-        return np.zeros(len(queries), np.int64)
-    i = np.clip(np.searchsorted(ordered, queries), 1, len(ordered) - 1)
-    below = np.abs(ordered[i - 1] - queries) <= np.abs(ordered[i] - queries)
-    return order[np.where(below, i - 1, i)]
-
-
-def _wrap(angle):
-    return np.remainder(angle + np.pi, 2 * np.pi) - np.pi
-
-
-def heading_slope(stamps, odometry, relations, headings) -> tuple[float, float, np.ndarray]:
+def heading_slope(stamps, rates, relations, headings) -> tuple[float, float, np.ndarray]:
     """``headings`` (one per stamp) against the local relations: the least-squares slope (s)
-    of their heading error on the change of odometry's turn rate between each relation's ends,
-    the correlation, and each local relation's heading error (rad, NaN where not found)."""
-    stamps = np.asarray(stamps, np.float64)
-    odometry = np.asarray(odometry, np.float64)
-    rate = turn_rates(stamps, odometry)[:, 2]
+    of their heading error on the change of odometry's turn rate (``rates``, rad/s at each
+    stamp: :func:`turn_rates`) between each relation's ends, the correlation, and each local
+    relation's heading error (rad, NaN where not found)."""
     i, j, found = match_relations(stamps, relations)
     found &= np.abs(relations.t2 - relations.t1) < LOCAL_GAP
     error = np.full(len(relations), np.nan)
-    error[found] = _wrap(headings[j[found]] - headings[i[found]] - relations.delta[found, 2])
-    change = rate[j] - rate[i]
+    error[found] = wrap_angle(headings[j[found]] - headings[i[found]]
+                              - relations.delta[found, 2])
+    change = rates[j] - rates[i]
     used = found & (np.abs(error) < np.radians(MAX_ERROR_DEG))
     if used.sum() < 3 or np.ptp(change[used]) == 0:
         return 0.0, 0.0, error
@@ -84,6 +69,14 @@ def heading_slope(stamps, odometry, relations, headings) -> tuple[float, float, 
     return slope, correlation, error
 
 
+def _agreement(error) -> float:
+    """The share of the local relations (``error`` not NaN) within ``AGREEMENT_DEG``."""
+    local = ~np.isnan(error)
+    if not np.any(local):
+        return 0.0
+    return float(np.mean(np.abs(error[local]) < np.radians(AGREEMENT_DEG)))
+
+
 def reference_clock(stamps, odometry, relations, trajectory=None) -> dict:
     """Odometry's (and, with ``trajectory`` — ``(stamps, poses)`` — the trajectory's) heading
     slope against the relations (see the module's docstring), the share of local relations
@@ -91,25 +84,21 @@ def reference_clock(stamps, odometry, relations, trajectory=None) -> dict:
     again on the reference's clock."""
     stamps = np.asarray(stamps, np.float64)
     odometry = np.asarray(odometry, np.float64)
-    slope, corr, error = heading_slope(stamps, odometry, relations, odometry[:, 2])
-    local = ~np.isnan(error)
+    slope, corr, error = heading_slope(stamps, turn_rates(stamps, odometry)[:, 2], relations,
+                                       odometry[:, 2])
     out = {"odometry_slope_ms": 1e3 * slope, "odometry_correlation": corr,
-           "odometry_agreement": float(np.mean(np.abs(error[local]) < np.radians(AGREEMENT_DEG)))
-           if np.any(local) else 0.0}
+           "odometry_agreement": _agreement(error)}
     if trajectory is None:
         return out
     t_stamps, poses = trajectory
-    at = nearest(stamps, t_stamps)
-    on_log = np.abs(stamps[at] - t_stamps) < 1e-4
+    at, on_log = nearest_stamps(stamps, t_stamps)
     if not np.all(on_log):
         raise ValueError(f"{int((~on_log).sum())} of the trajectory's stamps are not the log's "
                          "scans' (a trajectory of another log?)")
-    slope, corr, error = heading_slope(t_stamps, odometry[at], relations, poses[:, 2])
-    moved = compose(poses, -slope * turn_rates(t_stamps, odometry[at]))
-    local = ~np.isnan(error)
+    rates = turn_rates(t_stamps, odometry[at])  # once: the fit's and the move's
+    slope, corr, error = heading_slope(t_stamps, rates[:, 2], relations, poses[:, 2])
     out.update({"trajectory_slope_ms": 1e3 * slope, "trajectory_correlation": corr,
-                "trajectory_agreement": float(np.mean(np.abs(error[local])
-                                                      < np.radians(AGREEMENT_DEG)))
-                if np.any(local) else 0.0,
-                "on_reference_clock": kummerle(t_stamps, moved, relations)})
+                "trajectory_agreement": _agreement(error),
+                "on_reference_clock": kummerle(t_stamps, compose(poses, -slope * rates),
+                                               relations)})
     return out

@@ -8,7 +8,8 @@ import pytest
 import scripts.relations_clock as relations_clock
 from runtime.pose import between
 from scripts.relations import Relations
-from scripts.relations_clock import heading_slope, reference_clock
+from scripts.metrics import nearest_stamps
+from scripts.relations_clock import heading_slope, reference_clock, turn_rates
 from swarmslam_sim.survey import OdometryModel, drive, integrate_odometry, site
 
 LATENCY = 0.04  # s
@@ -53,7 +54,7 @@ def test_a_reference_on_odometrys_clock_shows_a_scan_trajectorys_latency():
     assert abs(clock["odometry_slope_ms"]) < 1.0 and clock["odometry_agreement"] == 1.0
     assert clock["trajectory_slope_ms"] == pytest.approx(1e3 * LATENCY, rel=0.05)
     assert clock["trajectory_correlation"] > 0.99
-    _, _, before = heading_slope(t, truth, relations, scans[:, 2])
+    _, _, before = heading_slope(t, turn_rates(t, truth)[:, 2], relations, scans[:, 2])
     moved = clock["on_reference_clock"]
     assert moved["eR_deg"] < 0.05 * np.degrees(np.nanmean(np.abs(before)))
 
@@ -80,7 +81,7 @@ def test_a_trajectory_stamped_a_hair_after_its_scans_is_still_the_logs():
     clock = reference_clock(t, truth, relations, (t + 5e-5, truth))  # a rounding's worth late
     assert abs(clock["trajectory_slope_ms"]) < 1.0
     order = np.r_[len(t) - 1, np.arange(len(t) - 1)]  # the log's scans out of order
-    assert np.array_equal(relations_clock.nearest(t[order], t[:3]), [1, 2, 3])
+    assert np.array_equal(nearest_stamps(t[order], t[:3])[0], [1, 2, 3])
 
 
 def test_noisy_odometry_on_the_references_clock_shows_no_slope():
