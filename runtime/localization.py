@@ -32,6 +32,7 @@ from runtime.config import SlamConfig
 from runtime.front_end import TRAJECTORY_STATUS, odometry_motion
 from runtime.map_tracking import MapTracker, SavedMap
 from runtime.node_scans import NodeScans
+from runtime.occupancy_grid import OccupancyGrid
 from runtime.pose import between, compose, inverse
 from runtime.relocalization import Located, Relocalizer
 from runtime.scan import PointScan
@@ -337,6 +338,13 @@ class Localizer:
     def candidates(self) -> np.ndarray:
         """The poses still in question (while confirming), or the committed one."""
         return np.array([t.pose for t in self.trackers[: self.n_candidates]]).reshape(-1, 3)
+
+    def global_map(self) -> OccupancyGrid:
+        """The saved map localization runs in, as an occupancy grid: the saved node scans
+        drawn from their saved poses (what mapping's ``global_map`` gave when it was saved)."""
+        s, m = self.saved, self.config.map
+        grid = OccupancyGrid.covering_nodes(s.poses, s.nodes, s.n_nodes, m)
+        return grid.draw_nodes(s.poses, s.nodes, s.n_nodes, m.max_range)
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         """Timestamps and poses of the scans with a committed pose."""

@@ -100,6 +100,13 @@ class OccupancyGrid:
         return cls.covering(nodes.extent_points(poses, n_nodes, m.max_range), m.resolution,
                             m.margin, m.max_cells)
 
+    def draw_nodes(self, poses, nodes, n_nodes: int, max_range: float) -> OccupancyGrid:
+        """Draw the first ``n_nodes`` node scans (a :class:`runtime.node_scans.NodeScans`)
+        from ``poses`` into the grid (added to what is in it); returns the grid."""
+        for k in range(n_nodes):
+            self.integrate(poses[k], nodes.scan_points(k), max_range)
+        return self
+
     def integrate(self, pose, points, max_range: float = np.inf) -> int:
         """Add a scan; returns the number of ``region`` cells it observed for the first time."""
         pts = np.asarray(points, dtype=np.float64)

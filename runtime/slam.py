@@ -165,9 +165,7 @@ class GraphSlam:
         """Draw every node's scan from its optimised pose into ``grid`` (added to what is in
         it)."""
         reach = self.config.map.max_range if max_range is None else max_range
-        for k in range(self.graph.n_nodes):
-            grid.integrate(self.graph.poses[k], self.node_scan(k), reach)
-        return grid
+        return grid.draw_nodes(self.graph.poses, self.nodes, self.graph.n_nodes, reach)
 
     def global_map(self) -> OccupancyGrid:
         """An occupancy grid covering the node poses and their scans within the map's reach."""

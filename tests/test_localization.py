@@ -93,6 +93,18 @@ def test_localization_finds_tracks_and_changes_nothing(saved_loop, tmp_path):
         runtime.save(tmp_path / "x.npz")
 
 
+def test_the_map_localization_runs_in_is_the_saved_one(saved_loop):
+    """``global_map`` in localization mode: the saved session's map, cell for cell, as the
+    mapping run drew it before it was saved (not an error, not an empty grid)."""
+    path, drive, scan = saved_loop
+    mapping = SlamRuntime.resume(path)
+    runtime = SlamRuntime.localize(path)
+    drawn, saved = mapping.global_map(), runtime.global_map()
+    assert np.count_nonzero(saved.logodds) > 1000
+    assert np.array_equal(saved.origin, drawn.origin) and saved.resolution == drawn.resolution
+    assert np.array_equal(saved.logodds, drawn.logodds)
+
+
 @contextlib.contextmanager
 def slipping_matches(matcher, offset):
     """While ``on[0]`` (``on`` yielded), each match lands ``offset`` (in its own frame) from
