@@ -13,7 +13,8 @@ Formats (from the logs' own headers)::
                 tv rv forward_safety side_safety turn_axis ipc_timestamp ipc_hostname logger_timestamp
 
 ``FLASER`` carries no beam geometry: CARMEN's front laser spans 180° from −90°, at 1° for 180
-or 181 beams (0.5° for 360 or 361).
+or 181 beams (0.5° for 360 or 361). Nor does it say what a beam without a return reads: the
+scanner's own fixed value, taken from the log (:func:`flaser_no_return`).
 """
 
 from __future__ import annotations
@@ -28,8 +29,13 @@ import numpy as np
 from runtime.pose import between
 from runtime.text_records import DataFormatError, records
 
-# Readings at or beyond this are "no return" in FLASER logs (Intel uses 81.83, ACES 50.0).
+# Readings at or beyond this are "no return" in a FLASER log that does not show its own value
+# (Intel's scanner reads 81.83, ACES3's 50.0: see flaser_no_return).
 FLASER_MAX_RANGE = 50.0
+# A FLASER log's "no return" reading recurs exactly in at least this share of its readings (and
+# at least SENTINEL_MIN_COUNT times): Intel's 81.83 is 2.8% of them, ACES3's 50.0 0.8%.
+SENTINEL_SHARE = 1e-4
+SENTINEL_MIN_COUNT = 10
 
 
 class CarmenFormatError(DataFormatError):
@@ -174,27 +180,62 @@ def _odom(f: _Fields) -> OdometryRecord:
     return OdometryRecord(f.timestamp(), pose, line=f.line)
 
 
-def read_carmen(path, max_range: float = FLASER_MAX_RANGE, sort: bool = True,
+def flaser_no_return(ranges, fallback: float = FLASER_MAX_RANGE) -> float:
+    """The reading a FLASER log gives a beam without a return, from its readings ``ranges``
+    (one flat array): the least value that recurs exactly — at least ``SENTINEL_SHARE`` of the
+    readings and ``SENTINEL_MIN_COUNT`` times — with no more than that many readings above it
+    that are not such recurring values themselves. A scanner puts "no return" and its error
+    codes at the top of its scale, and measures nothing beyond them; a distance many beams
+    measure alike (a wall at 1.08 m) has countless readings above it. ``fallback`` when no
+    value qualifies (every beam returned, or too few did not to tell).
+
+    >>> flaser_no_return(np.r_[np.linspace(0.5, 30.0, 2000), np.full(40, 81.83)])
+    81.83
+    >>> flaser_no_return(np.r_[np.full(300, 1.08), np.linspace(0.5, 7.9, 2000), np.full(60, 8.18)])
+    8.18
+    >>> flaser_no_return(np.linspace(0.5, 30.0, 2000))  # nothing recurs at the top: the default
+    50.0
+    """
+    ranges = np.asarray(ranges, np.float64)
+    values, counts = np.unique(ranges[np.isfinite(ranges)], return_counts=True)
+    least = max(SENTINEL_MIN_COUNT, SENTINEL_SHARE * counts.sum())
+    recurs = counts >= least
+    # readings above each value that do not recur (a suffix sum from the top of the scale)
+    other = np.where(recurs, 0, counts)
+    above = np.cumsum(other[::-1])[::-1] - other
+    found = np.flatnonzero(recurs & (above < least))
+    return float(values[found[0]]) if len(found) else float(fallback)
+
+
+def read_carmen(path, max_range: float | None = None, sort: bool = True,
                 synchronise: bool = True) -> CarmenLog:
-    """Read a CARMEN log. ``max_range`` applies to FLASER lines, which do not carry one.
-    ``synchronise``: FLASER scans take their odometry from the ODOM stream at their own
-    timestamps where the stream's times can be trusted (:func:`odometry_at_scans`)."""
+    """Read a CARMEN log. ``max_range`` applies to FLASER lines, which do not carry one:
+    readings at or beyond it are "no return"; None: the log's own no-return reading
+    (:func:`flaser_no_return`). ``synchronise``: FLASER scans take their odometry from the
+    ODOM stream at their own timestamps where the stream's times can be trusted
+    (:func:`odometry_at_scans`)."""
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such log file")
     lasers: list[LaserRecord] = []
+    flaser: list[LaserRecord] = []  # the FLASER ones among them
     odometry: list[OdometryRecord] = []
     for lineno, tokens in records(path, _open, "ascii", "replace"):
         kind = tokens[0]
         f = _Fields(path, lineno, tokens)
         if kind == "FLASER":
-            lasers.append(_flaser(f, max_range))
+            flaser.append(_flaser(f, FLASER_MAX_RANGE if max_range is None else max_range))
+            lasers.append(flaser[-1])
         elif kind == "ROBOTLASER1":
             lasers.append(_robotlaser1(f))
         elif kind == "ODOM":
             odometry.append(_odom(f))
     if not lasers:
         raise CarmenFormatError(path, 0, "FLASER/ROBOTLASER1", "the log has no laser scans")
+    if flaser and max_range is None:
+        no_return = flaser_no_return(np.concatenate([r.ranges for r in flaser]))
+        for r in flaser:
+            r.max_range = no_return
     if sort:  # stable: equal timestamps keep file order
         lasers.sort(key=lambda r: r.timestamp)
         odometry.sort(key=lambda r: r.timestamp)

@@ -24,10 +24,13 @@ from swarmslam_sim.lidar import Lidar, LidarConfig
 from swarmslam_sim.world import World
 
 # Scanners of the suite: the logs it stands in for carry 180° SICK lasers at 1° and 0.5°
-# reaching 80 m; small robots carry 360° RPLidars reaching 12 m.
+# reaching 80 m; small robots carry 360° RPLidars reaching 12 m. "sick-1-8m" is a SICK in its
+# millimetre mode, reaching 8.183 m and reading that for a beam without a return: a FLASER
+# log of it says so only by that recurring value (scripts.carmen.flaser_no_return).
 SCANNERS = {
     "sick-1": LidarConfig(181, math.pi, 0.05, 80.0, 10.0, 0.01, 0.0),
     "sick-0.5": LidarConfig(361, math.pi, 0.05, 80.0, 10.0, 0.01, 0.0),
+    "sick-1-8m": LidarConfig(181, math.pi, 0.05, 8.183, 10.0, 0.01, 0.0),
     "rplidar-a1": LidarConfig(360, 2 * math.pi, 0.15, 12.0, 5.5, 0.02, 0.01),
     "rplidar-a2": LidarConfig(720, 2 * math.pi, 0.15, 12.0, 10.0, 0.015, 0.005),
 }

@@ -6,10 +6,13 @@ import pytest
 
 from scripts.carmen import (
     CarmenFormatError,
+    flaser_no_return,
     odometry_at_scans,
     read_carmen,
     regular_stream,
 )
+from scripts.replay import robot_frame_scan
+from runtime.scan import PointScan
 
 FLASER = "FLASER 4 1.0 2.0 50.0 0.5 0.1 0.2 0.3 0.1 0.2 0.3 {t} host {t}\n"
 ODOM = "ODOM 1.0 2.0 0.5 0.0 0.0 0.0 {t} host {t}\n"
@@ -113,3 +116,44 @@ def test_a_bursty_odometry_stream_is_not_interpolated(tmp_path):
     assert odometry_at_scans(read_carmen(write(tmp_path, text), synchronise=False).lasers,
                              read_carmen(write(tmp_path, text)).odometry) == 0
     assert np.array_equal(read_carmen(write(tmp_path, text)).lasers[0].odometry, [0.2, 0.0, 0.0])
+
+
+def flaser_log(tmp_path, no_return: float, scans: int = 40, beams: int = 181):
+    """A FLASER log of a scanner reading ``no_return`` for a beam without one: every scan
+    sees a wall 3–7 m away over its left half and nothing on its right."""
+    rng = np.random.default_rng(4)
+    lines = []
+    for k in range(scans):
+        ranges = np.full(beams, no_return)
+        ranges[beams // 2 :] = rng.uniform(3.0, 7.0, beams - beams // 2).round(3)
+        rs = " ".join(f"{r:.3f}" for r in ranges)
+        lines.append(f"FLASER {beams} {rs} 0 0 0 0 0 0 {k * 0.2:.3f} host {k * 0.2:.3f}\n")
+    return write(tmp_path, "".join(lines))
+
+
+@pytest.mark.parametrize("no_return", [8.183, 81.83])
+def test_a_flaser_log_says_its_no_return_reading_by_repeating_it(tmp_path, no_return):
+    """A FLASER line has no maximum range: the scanner's "no return" value is found in the
+    log (below the old fixed 50 m, an 8 m scanner's beams without a return were read as an
+    arc of points 8.183 m around the robot), and those beams give no point."""
+    log = read_carmen(flaser_log(tmp_path, no_return))
+    assert {r.max_range for r in log.lasers} == {no_return}
+    scan = robot_frame_scan(log.lasers[0], PointScan(181))
+    assert scan.count == 91  # the wall's beams, none of the empty half
+    assert np.all(np.hypot(*scan.points.T) < 7.0 + 1e-9)
+    # a maximum given by the caller stands
+    assert {r.max_range for r in read_carmen(flaser_log(tmp_path, no_return), max_range=5.0)
+            .lasers} == {5.0}
+
+
+def test_no_return_is_the_least_recurring_value_with_nothing_measured_beyond_it():
+    wall = np.linspace(0.5, 7.9, 5000)
+    # a distance many beams read alike is no "no return": readings go on beyond it
+    assert flaser_no_return(np.r_[np.full(900, 1.08), wall, np.full(100, 8.183)]) == 8.183
+    # error codes above the no-return value recur too, and do not hide it
+    assert flaser_no_return(np.r_[wall, np.full(100, 8.183), np.full(30, 8.191)]) == 8.183
+    # a stray reading or two above it do not either
+    assert flaser_no_return(np.r_[wall, np.full(100, 8.183), [9.5, 12.0]]) == 8.183
+    # a value recurring too seldom to tell, or none: the old default stands
+    assert flaser_no_return(np.r_[wall, np.full(3, 8.183)]) == 50.0
+    assert flaser_no_return(np.r_[wall, [np.nan, np.inf]]) == 50.0
