@@ -4,6 +4,7 @@ import math
 import numpy as np
 import pytest
 
+from runtime.scan import PointScan
 from scripts.carmen import (
     CarmenFormatError,
     flaser_no_return,
@@ -12,7 +13,6 @@ from scripts.carmen import (
     regular_stream,
 )
 from scripts.replay import robot_frame_scan
-from runtime.scan import PointScan
 
 FLASER = "FLASER 4 1.0 2.0 50.0 0.5 0.1 0.2 0.3 0.1 0.2 0.3 {t} host {t}\n"
 ODOM = "ODOM 1.0 2.0 0.5 0.0 0.0 0.0 {t} host {t}\n"

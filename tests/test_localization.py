@@ -94,8 +94,8 @@ def test_localization_finds_tracks_and_changes_nothing(saved_loop, tmp_path):
 
 
 def test_the_map_localization_runs_in_is_the_saved_one(saved_loop):
-    """``global_map`` in localization mode: the saved session's map, cell for cell, as the
-    mapping run drew it before it was saved (not an error, not an empty grid)."""
+    """``global_map`` in localization mode: the saved session's map, cell for cell as mapping
+    draws it from the same session (it was an AttributeError)."""
     path, drive, scan = saved_loop
     mapping = SlamRuntime.resume(path)
     runtime = SlamRuntime.localize(path)
