@@ -10,12 +10,14 @@ Entities (map frame, metres, z = 0):
   ``stats/pose_error_m`` (where the truth is known)
 
 Timelines: ``tick`` (sequence) and ``time`` (the scans' clock, from the first scan).
-Without a display ``--view`` serves the web viewer and says where to open it.
+Without a display ``--view`` serves the web viewer and says where to open it: on rerun's usual
+ports (gRPC 9876, web 9090), or on ports the system has free when another run holds those.
 """
 
 from __future__ import annotations
 
 import os
+import socket
 import sys
 import threading
 
@@ -28,7 +30,19 @@ from runtime.writers import AtomicFile
 from scripts.map_painter import map_nodes
 
 APP = "swarmslam"
-WEB_PORT = 9090
+GRPC_PORT, WEB_PORT = 9876, 9090  # rerun's own defaults: what its users expect to open
+
+
+def free_port(preferred: int) -> int:
+    """``preferred`` if nothing holds it on any interface, else a port the system has free
+    (a second viewed run then serves beside the first instead of failing to listen and
+    pointing at the first run's viewer)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        try:
+            probe.bind(("0.0.0.0", preferred))
+        except OSError:
+            probe.bind(("0.0.0.0", 0))
+        return probe.getsockname()[1]
 
 
 def has_display() -> bool:
@@ -50,7 +64,7 @@ class RerunView:
             sinks.append(rr.GrpcSink())
             echo("rerun: viewer spawned")
         elif view:
-            server = rr.GrpcServerSink()
+            server = rr.GrpcServerSink(port=free_port(GRPC_PORT))
             sinks.append(server)
         # the recording appears complete at ``record`` when the run ends (written beside it)
         self.record = AtomicFile(record) if record else None
@@ -58,9 +72,10 @@ class RerunView:
             sinks.append(rr.FileSink(self.record.tmp))
         self.rec.set_sinks(*sinks)
         if view and not has_display():
-            rr.serve_web_viewer(web_port=WEB_PORT, open_browser=False, connect_to=server.uri)
+            web_port = free_port(WEB_PORT)
+            rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=server.uri)
             uri = server.uri.replace("0.0.0.0", "localhost")
-            echo(f"rerun: no display here; open http://localhost:{WEB_PORT}/?url={uri} in a "
+            echo(f"rerun: no display here; open http://localhost:{web_port}/?url={uri} in a "
                  f"browser (from another machine: its address for localhost), or run "
                  f"`rerun {uri}`")
         self.serving = bool(view and not has_display())

@@ -5,6 +5,8 @@ import base64
 import json
 import math
 import os
+import re
+import socket
 import stat
 import subprocess
 import sys
@@ -16,6 +18,7 @@ import rerun as rr
 from gymnasium.wrappers import RecordVideo
 from mcap.reader import make_reader
 
+import scripts.rerun_view as rerun_view
 import scripts.run_view as run_view
 from runtime.scan import PointScan
 from runtime.writers import write_bytes_atomic
@@ -121,6 +124,31 @@ def test_view_without_a_display_serves_the_web_viewer(hall_log, tmp_path, monkey
     assert main(["replay", str(hall_log), "--limit", "10", "--out", str(tmp_path), "--view"]) == 0
     said = capsys.readouterr().out
     assert "no display here; open http://localhost:" in said
+
+
+def test_a_second_viewed_run_serves_on_ports_of_its_own(hall_log, tmp_path, monkeypatch,
+                                                          capsys):
+    """Where another run holds the viewer's ports, the next one serves on free ones and says
+    which (it used to fail to listen and print the first run's address)."""
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    with socket.socket() as grpc, socket.socket() as web:
+        for held in (grpc, web):
+            held.bind(("0.0.0.0", 0))
+            held.listen()
+        busy = {grpc.getsockname()[1], web.getsockname()[1]}
+        monkeypatch.setattr(rerun_view, "GRPC_PORT", grpc.getsockname()[1])
+        monkeypatch.setattr(rerun_view, "WEB_PORT", web.getsockname()[1])
+        assert rerun_view.free_port(grpc.getsockname()[1]) not in busy
+        assert main(["replay", str(hall_log), "--limit", "5", "--out", str(tmp_path),
+                     "--view"]) == 0
+    said = capsys.readouterr().out
+    ports = {int(p) for p in re.findall(r"localhost:(\d+)", said)}
+    assert len(ports) == 2 and not ports & busy, said
+    with socket.socket() as probe:  # a free preferred port is kept
+        probe.bind(("0.0.0.0", 0))
+        free = probe.getsockname()[1]
+    assert rerun_view.free_port(free) == free
 
 
 def test_a_missing_extra_is_refused_before_the_run(hall_log, tmp_path, monkeypatch, capsys):
