@@ -342,9 +342,8 @@ class Localizer:
     def global_map(self) -> OccupancyGrid:
         """The saved map localization runs in, as an occupancy grid: the saved node scans
         drawn from their saved poses (what mapping's ``global_map`` gave when it was saved)."""
-        s, m = self.saved, self.config.map
-        grid = OccupancyGrid.covering_nodes(s.poses, s.nodes, s.n_nodes, m)
-        return grid.draw_nodes(s.poses, s.nodes, s.n_nodes, m.max_range)
+        s = self.saved
+        return OccupancyGrid.of_nodes(s.poses, s.nodes, s.n_nodes, self.config.map)
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         """Timestamps and poses of the scans with a committed pose."""

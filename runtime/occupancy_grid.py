@@ -100,6 +100,13 @@ class OccupancyGrid:
         return cls.covering(nodes.extent_points(poses, n_nodes, m.max_range), m.resolution,
                             m.margin, m.max_cells)
 
+    @classmethod
+    def of_nodes(cls, poses, nodes, n_nodes: int, map_config) -> OccupancyGrid:
+        """The map of the first ``n_nodes`` node scans drawn from ``poses``: a grid
+        :meth:`covering_nodes` them, each scan drawn within ``map_config.max_range``."""
+        grid = cls.covering_nodes(poses, nodes, n_nodes, map_config)
+        return grid.draw_nodes(poses, nodes, n_nodes, map_config.max_range)
+
     def draw_nodes(self, poses, nodes, n_nodes: int, max_range: float) -> OccupancyGrid:
         """Draw the first ``n_nodes`` node scans (a :class:`runtime.node_scans.NodeScans`)
         from ``poses`` into the grid (added to what is in it); returns the grid."""

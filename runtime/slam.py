@@ -170,8 +170,7 @@ class GraphSlam:
     def global_map(self) -> OccupancyGrid:
         """An occupancy grid covering the node poses and their scans within the map's reach."""
         g = self.graph
-        return self.draw_map(OccupancyGrid.covering_nodes(g.poses, self.nodes, g.n_nodes,
-                                                          self.config.map))
+        return OccupancyGrid.of_nodes(g.poses, self.nodes, g.n_nodes, self.config.map)
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         """Timestamps and optimised poses of every scan recorded."""
