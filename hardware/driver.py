@@ -6,8 +6,8 @@
     ...
     lidar.close()                    # scan and motor stopped, port closed
 
-The reader thread decodes bytes as they arrive (:mod:`hardware.stream`) into preallocated
-rotation buffers (:class:`hardware.rotation.Rotations`) and calls ``on_scan(angles, ranges,
+The reader thread decodes bytes as they arrive (:mod:`swarmslam.hardware.stream`) into preallocated
+rotation buffers (:class:`swarmslam.hardware.rotation.Rotations`) and calls ``on_scan(angles, ranges,
 stamp)`` with each whole rotation — radians counter-clockwise in the robot frame, metres, and
 the monotonic time the rotation ended. Nothing the scanner sends can raise in that thread:
 damage is counted (``stats``). Silence longer than ``timeout`` restarts the scan; a port that
@@ -22,11 +22,11 @@ import time
 
 import serial
 
-from hardware import protocol as p
-from hardware.models import ScanMode
-from hardware.models import model as get_model
-from hardware.rotation import Rotations
-from hardware.stream import NodeStream, StreamStats, find_descriptor, stream_for
+from swarmslam.hardware import protocol as p
+from swarmslam.hardware.models import ScanMode
+from swarmslam.hardware.models import model as get_model
+from swarmslam.hardware.rotation import Rotations
+from swarmslam.hardware.stream import NodeStream, StreamStats, find_descriptor, stream_for
 
 try:  # a port that vanishes mid-call fails in termios, which is not an OSError
     from termios import error as _termios_error

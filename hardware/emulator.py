@@ -9,11 +9,11 @@ It answers GET_INFO, GET_HEALTH, GET_SAMPLERATE, GET_LIDAR_CONF, GET_ACC_BOARD_F
 commands, STOP and RESET. SCAN streams standard nodes; EXPRESS_SCAN streams, for working mode 0,
 the model's legacy express answer (express capsules on the A-series, dense on the S-series and
 C1), and for a mode id the answer of that scan mode in the model's table
-(:data:`hardware.models.MODELS`: express, ultra, dense, ultra-dense or HQ capsules) at its
+(:data:`swarmslam.hardware.models.MODELS`: express, ultra, dense, ultra-dense or HQ capsules) at its
 sample rate; GET_LIDAR_CONF describes every mode and names the typical one. The ranges come
 from a *source*: ``source.distances(angles_deg)`` gives distances in mm (0: no return) at the
 scanner's clockwise angles for the rotation under way, and ``source.next_rotation()`` moves on
-(:class:`scripts.emulator_sources.CarmenSource`, :class:`scripts.emulator_sources.WorldSource`).
+(:class:`swarmslam.emulator_sources.CarmenSource`, :class:`swarmslam.emulator_sources.WorldSource`).
 
 Faults: garbage bytes between packets, corrupted packets (a capsule's checksum, a node's flag
 bits), stalls (the stream stops for a while), and a vanishing port (the pseudo-terminal is
@@ -36,8 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hardware import protocol as p
-from hardware.models import model as get_model
+from swarmslam.hardware import protocol as p
+from swarmslam.hardware.models import model as get_model
 
 TCGETS2 = 0x802C542A  # Linux: read a terminal's termios2 (its speeds as numbers)
 STANDARD_US = 508  # µs per sample in standard mode (A-series)

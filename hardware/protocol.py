@@ -6,7 +6,7 @@ where sources disagree, Slamtec's SDK: the express capsule's angle offsets dθ a
 Angles are the scanner's: degrees, clockwise, 0 at the scanner's front.
 
 The decoders return ``None`` for a malformed unit instead of raising; the stream parsers in
-:mod:`hardware.stream` count those and resynchronise.
+:mod:`swarmslam.hardware.stream` count those and resynchronise.
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@ under way, ``next_rotation()`` to move on, ``reset()`` when a scan starts.
 
 Angles are the scanner's (degrees, clockwise from its front); distances are in mm, 0 for no
 return. A recorded log and a simulated world, which need other packages, are in
-:mod:`scripts.emulator_sources`.
+:mod:`swarmslam.emulator_sources`.
 """
 
 from __future__ import annotations

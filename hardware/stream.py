@@ -2,7 +2,7 @@
 
 Nothing here raises on bad data. A damaged stream costs the samples it damaged, counted in
 :class:`StreamStats`; every good packet after it is decoded. Parsers hand each sample to a
-sink's ``add(start, quality, angle_q6, distance_q2)`` (:class:`hardware.rotation.Rotations`).
+sink's ``add(start, quality, angle_q6, distance_q2)`` (:class:`swarmslam.hardware.rotation.Rotations`).
 
 * Responses: :func:`find_descriptor` skips to the next ``A5 5A`` as the SDK's header state
   machine does.
@@ -34,7 +34,7 @@ from __future__ import annotations
 
 from typing import Callable, NamedTuple
 
-from hardware.protocol import (
+from swarmslam.hardware.protocol import (
     ANS_CAPSULE,
     ANS_DENSE,
     ANS_HQ,

@@ -1,8 +1,8 @@
 """The embeddable SLAM core (README, "Layout"). Importing it first makes sure no compiled
-kernel cached from older sources runs (:mod:`runtime.kernel_cache`)."""
+kernel cached from older sources runs (:mod:`swarmslam.runtime.kernel_cache`)."""
 
 from pathlib import Path
 
-from runtime.kernel_cache import refresh
+from swarmslam.runtime.kernel_cache import refresh
 
 refresh(Path(__file__).parent)

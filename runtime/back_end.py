@@ -8,7 +8,7 @@ Each new node joins a queue of fixed capacity. Its search then runs as a chain o
   on the loop matcher);
 * ``CLOSE``: add the edge, optimise the graph, keep or undo it (the consistency test);
 * ``WIDE``: when the node's candidates gave nothing and no closure with an old node was kept
-  for ``wide_after`` nodes, the wide search (:mod:`runtime.wide_loop_search`) over the old nodes'
+  for ``wide_after`` nodes, the wide search (:mod:`swarmslam.runtime.wide_loop_search`) over the old nodes'
   map; its proposal, if any, is aligned and closed as a candidate is. In the budgeted schedule
   the search is itself a chain of WIDE slices (a part of its grid rendered or pooled, a share
   of its branch and bound), so that a wide window does not overrun a tick.
@@ -27,16 +27,16 @@ from dataclasses import replace
 
 import numpy as np
 
-from runtime.config import SlamConfig
-from runtime.degeneracy import Degeneracy
-from runtime.graph_optimizer import GaussNewton
-from runtime.loop_closure import LoopCloser, relative_guess, visibility
-from runtime.node_scans import NodeScans
-from runtime.pose_graph import LOOP, PoseGraph
-from runtime.scan import PointScan
-from runtime.scan_matcher import ScanMatcher
-from runtime.sparse_ldl import FactorCapacityError
-from runtime.wide_loop_search import WideLoopSearch
+from swarmslam.runtime.config import SlamConfig
+from swarmslam.runtime.degeneracy import Degeneracy
+from swarmslam.runtime.graph_optimizer import GaussNewton
+from swarmslam.runtime.loop_closure import LoopCloser, relative_guess, visibility
+from swarmslam.runtime.node_scans import NodeScans
+from swarmslam.runtime.pose_graph import LOOP, PoseGraph
+from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.scan_matcher import ScanMatcher
+from swarmslam.runtime.sparse_ldl import FactorCapacityError
+from swarmslam.runtime.wide_loop_search import WideLoopSearch
 
 SELECT, ALIGN, CLOSE, WIDE = 0, 1, 2, 3
 SLICE_NAMES = ("select", "align", "close", "wide")

@@ -653,7 +653,7 @@ POINTS_MARGIN = 1.25
 POINTS_SLACK = 64
 MIN_POINTS = 400
 # RPLidar models: (samples per second of the fastest scan mode, rotations per second, range m)
-# as hardware.models has them (a test keeps the two equal; the core does not import hardware).
+# as swarmslam.hardware.models has them (a test keeps the two equal; the core does not import hardware).
 RPLIDAR_MODELS = {"a1": (4000, 5.5, 12.0), "a2": (7874, 10.0, 12.0), "a3": (15873, 10.0, 25.0),
                   "s1": (9259, 10.0, 40.0), "s2": (32000, 10.0, 30.0), "c1": (5000, 10.0, 12.0)}
 # The simulator's LiDARs (swarmslam_sim.lidar.PRESETS): beams, min and max range.

@@ -33,15 +33,15 @@ from dataclasses import replace
 
 import numpy as np
 
-from runtime import session
-from runtime.config import SensorConfig, SlamConfig, from_dict, override, to_dict
-from runtime.inbox import ScanInbox
-from runtime.localization import Localizer
-from runtime.map_tracking import SavedMap
-from runtime.scan import PointScan
-from runtime.slam import GraphSlam
-from runtime.step_result import StepResult
-from runtime.warm_up import LoopDrive
+from swarmslam.runtime import session
+from swarmslam.runtime.config import SensorConfig, SlamConfig, from_dict, override, to_dict
+from swarmslam.runtime.inbox import ScanInbox
+from swarmslam.runtime.localization import Localizer
+from swarmslam.runtime.map_tracking import SavedMap
+from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.slam import GraphSlam
+from swarmslam.runtime.step_result import StepResult
+from swarmslam.runtime.warm_up import LoopDrive
 
 PAGE = 4096  # bytes: commit_memory writes one byte per page
 
@@ -139,7 +139,7 @@ class SlamRuntime:
     def __init__(self, config: SlamConfig | None = None, seed: int = 0, initial_pose=None,
                  clock=time.perf_counter, saved_map: SavedMap | None = None):
         """``saved_map``: localization mode — track in that map, never changing it
-        (:class:`runtime.localization.Localizer`; ``initial_pose`` None: search for it)."""
+        (:class:`swarmslam.runtime.localization.Localizer`; ``initial_pose`` None: search for it)."""
         self.config = config or SlamConfig()
         rc = self.config.runtime
         self.slam = (GraphSlam(self.config, seed=seed, initial_pose=initial_pose)
@@ -194,7 +194,7 @@ class SlamRuntime:
 
     def warm_up(self) -> float:
         """Run every compiled path once — matching, node insertion, loop search, optimisation —
-        on a synthetic loop (:class:`runtime.warm_up.LoopDrive`) through a throwaway runtime of
+        on a synthetic loop (:class:`swarmslam.runtime.warm_up.LoopDrive`) through a throwaway runtime of
         this configuration, so that no kernel is compiled or loaded on the hot path (the first
         loop closure would otherwise cost a deadline or a few MB of resident memory mid-run).
         Returns the seconds taken."""
@@ -238,7 +238,7 @@ class SlamRuntime:
         """The fixed-rate loop: a tick every period until ``stop`` is set. A tick that overruns
         its deadline is counted; the schedule then skips to the next period boundary instead
         of bunching late ticks together. ``autosave``: a session file written every
-        ``runtime.autosave_seconds`` (:class:`runtime.session.Autosave`) while mapping."""
+        ``runtime.autosave_seconds`` (:class:`swarmslam.runtime.session.Autosave`) while mapping."""
         period = self.config.runtime.period
         saver = None
         if autosave is not None and not self.localizing:
@@ -304,7 +304,7 @@ class SlamRuntime:
 
     # ------------------------------------------------------------------ sessions
     def state(self) -> dict:
-        """Everything needed to continue this run (see :mod:`runtime.session`)."""
+        """Everything needed to continue this run (see :mod:`swarmslam.runtime.session`)."""
         return {"config": to_dict(self.config), "seed": self.seed, "slam": self.slam.state(),
                 "stats": self.stats.state(), "inbox": self.inbox.state(),
                 "front_end_cost": self.front_end_cost}
@@ -321,7 +321,7 @@ class SlamRuntime:
         return isinstance(self.slam, Localizer)
 
     def save(self, path) -> None:
-        """The whole state to one file, atomically (see :mod:`runtime.session`)."""
+        """The whole state to one file, atomically (see :mod:`swarmslam.runtime.session`)."""
         if self.localizing:
             raise ValueError("a localization run changes no session: its map is read-only "
                              "(save the trajectory instead)")

@@ -10,7 +10,7 @@ error between two nodes to one match instead of a sum of many. A match that land
 points on the keyframe's surfaces, or (with odometry) corrects odometry by more than the
 odometry gate, has lost track: odometry stands in, or on scans alone the whole box is searched.
 With ``odometry_noise_window`` set, a node's edge takes odometry's heading in the share that
-odometry's record in this log has earned (runtime.odometry_noise). The trajectory — every
+odometry's record in this log has earned (swarmslam.runtime.odometry_noise). The trajectory — every
 scan's node and pose in that node's frame — is recorded here.
 """
 
@@ -21,16 +21,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from runtime.config import FrontEndConfig, SlamConfig
-from runtime.degeneracy import Degeneracy
-from runtime.loop_closure import propagate_covariance
-from runtime.node_scans import NodeScans
-from runtime.odometry_noise import OdometryNoise
-from runtime.odometry_scale import OdometryScale
-from runtime.pose import between, compose, interpolate
-from runtime.pose_graph import ODOMETRY, PoseGraph, information_from_sigma
-from runtime.scan import PointScan
-from runtime.scan_matcher import ScanMatcher
+from swarmslam.runtime.config import FrontEndConfig, SlamConfig
+from swarmslam.runtime.degeneracy import Degeneracy
+from swarmslam.runtime.loop_closure import propagate_covariance
+from swarmslam.runtime.node_scans import NodeScans
+from swarmslam.runtime.odometry_noise import OdometryNoise
+from swarmslam.runtime.odometry_scale import OdometryScale
+from swarmslam.runtime.pose import between, compose, interpolate
+from swarmslam.runtime.pose_graph import ODOMETRY, PoseGraph, information_from_sigma
+from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.scan_matcher import ScanMatcher
 
 CAPACITY_STATUS = "capacity reached: localising against the last node, map frozen"
 TRAJECTORY_STATUS = "trajectory capacity reached: poses no longer recorded"
@@ -100,7 +100,7 @@ class FrontEnd:
         self.last_odometry = np.zeros(3)  # odometry at the previous scan (a copy)
         self.have_odometry = False
         # Odometry at the keyframe's scan, and whether every scan since brought a reading: the
-        # node step's odometry, fused with the match's heading (runtime.odometry_noise).
+        # node step's odometry, fused with the match's heading (swarmslam.runtime.odometry_noise).
         self.keyframe_odometry = np.zeros(3)
         self.odometry_since_keyframe = False
         f = config.front_end
@@ -108,7 +108,7 @@ class FrontEnd:
                                             f.odometry_turn_split, f.odometry_sigma_floor,
                                             f.match_heading_sigma)
         # Odometry's distance scale, learnt from the steps the match pinned and applied where
-        # it could not (runtime.odometry_scale).
+        # it could not (swarmslam.runtime.odometry_scale).
         self.odometry_scale = OdometryScale(
             f.odometry_scale_window, f.odometry_scale_min_steps, f.odometry_scale_min_step,
             f.odometry_scale_max_turn, f.odometry_scale_dead_zone, f.odometry_scale_confidence,
@@ -117,7 +117,7 @@ class FrontEnd:
         self.weak = False  # a match since the last node was replaced by odometry
         self.lost_matches = 0
         self.degenerate_matches = 0  # matches held to the prediction along a direction
-        self.degeneracy = None  # the last match's (runtime.degeneracy), when measured
+        self.degeneracy = None  # the last match's (swarmslam.runtime.degeneracy), when measured
         self.status = "ok"
         self.evaluations = 0  # by the last match (what a viewer plots)
 
@@ -292,7 +292,7 @@ class FrontEnd:
                                 self._submap, rows=range(m))
 
     def _learn_scale(self, edge: int, z_odometry) -> None:
-        """A node step's lesson on odometry's distance scale (runtime.odometry_scale): one
+        """A node step's lesson on odometry's distance scale (swarmslam.runtime.odometry_scale): one
         the match pinned throughout estimates it; one whose last match was held to the
         prediction along an axis is marked, to follow the scale as it is learnt."""
         scale = self.odometry_scale
@@ -311,7 +311,7 @@ class FrontEnd:
 
     def _constrained(self, scan, pose, guess):
         """The match where the scan pins it, the prediction where it does not
-        (runtime.degeneracy; docs/method.md §6.1); the next node's edge is weak along it."""
+        (swarmslam.runtime.degeneracy; docs/method.md §6.1); the next node's edge is weak along it."""
         c = self.config.front_end
         h = self.matcher.curvature(scan, self.reference, pose, c.curvature_step)
         self.degeneracy = Degeneracy(h, c.degeneracy_ratio, c.degenerate_information)

@@ -2,7 +2,7 @@
 
 * Assembly: one compiled pass over the edges into preallocated triplets (a Python loop over
   edges was 40× slower), scattered into a CSC pattern that is worked out once per edge set.
-* Solve: sparse LDLᵀ (:mod:`runtime.sparse_ldl`: minimum-degree ordering of the nodes, QDLDL's
+* Solve: sparse LDLᵀ (:mod:`swarmslam.runtime.sparse_ldl`: minimum-degree ordering of the nodes, QDLDL's
   factorisation, compiled, in buffers of fixed capacity; scipy has no sparse Cholesky, and
   SuperLU took 88 ms per iteration on M3500 against 5 ms). The ordering and symbolic analysis
   are redone only when the edge set changes; iterations refactor numerically.
@@ -26,10 +26,10 @@ import scipy.sparse as sp
 from numba import njit
 from scipy.sparse.linalg import splu
 
-from runtime.config import OptimizerConfig
-from runtime.pose import wrap_angle_nb
-from runtime.pose_graph import LOOP, PoseGraph, edge_error
-from runtime.sparse_ldl import SparseLDL, permute_triplets
+from swarmslam.runtime.config import OptimizerConfig
+from swarmslam.runtime.pose import wrap_angle_nb
+from swarmslam.runtime.pose_graph import LOOP, PoseGraph, edge_error
+from swarmslam.runtime.sparse_ldl import SparseLDL, permute_triplets
 
 
 @njit(cache=True)

@@ -20,8 +20,8 @@ import threading
 
 import numpy as np
 
-from runtime.config import InputConfig
-from runtime.scan import PointScan, ranges_to_points
+from swarmslam.runtime.config import InputConfig
+from swarmslam.runtime.scan import PointScan, ranges_to_points
 
 
 class ScanInbox:

@@ -12,7 +12,7 @@ import math
 
 from numba import njit
 
-from runtime.distance_field import NX, NY, OX, OY, RES
+from swarmslam.runtime.distance_field import NX, NY, OX, OY, RES
 
 UNKNOWN = 128
 

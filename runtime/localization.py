@@ -1,13 +1,13 @@
 """Localization mode: find, confirm and track the robot's pose in a saved map that never
 changes (docs/method.md §9).
 
-    localizer = Localizer(config, saved)              # saved: a runtime.map_tracking.SavedMap
+    localizer = Localizer(config, saved)              # saved: a swarmslam.runtime.map_tracking.SavedMap
     result = localizer.step(scan, odometry, stamp)    # a StepResult; pose NaN while unknown
 
 1. searching — no pose (no prior was given, or it was lost): the global search
-   (:mod:`runtime.relocalization`, §8) places the scan, or lists the distinct poses that
+   (:mod:`swarmslam.runtime.relocalization`, §8) places the scan, or lists the distinct poses that
    explain it about equally well;
-2. confirming — every candidate is tracked (:class:`~runtime.map_tracking.MapTracker`) back
+2. confirming — every candidate is tracked (:class:`~swarmslam.runtime.map_tracking.MapTracker`) back
    over the scans since the search began (by odometry, at most ``confirm_replay_scans``), then
    forward over the next, until its scans span ``confirm_seconds``; a candidate whose scans
    stop fitting is dropped, two that track into one place merge, and after the window a
@@ -19,8 +19,8 @@ changes (docs/method.md §9).
 3. tracking — Alg. 5 against the saved node scans nearest the pose; ``lost_scans`` poor
    matches in a row → searching.
 
-The same :class:`~runtime.step_result.StepResult` as mapping comes back, so
-:class:`~runtime.fixed_rate.SlamRuntime` runs either at its fixed rate. The saved map's arrays
+The same :class:`~swarmslam.runtime.step_result.StepResult` as mapping comes back, so
+:class:`~swarmslam.runtime.fixed_rate.SlamRuntime` runs either at its fixed rate. The saved map's arrays
 are read-only: localization cannot change them.
 """
 
@@ -28,16 +28,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from runtime.config import SlamConfig
-from runtime.front_end import TRAJECTORY_STATUS, odometry_motion
-from runtime.map_tracking import MapTracker, SavedMap
-from runtime.node_scans import NodeScans
-from runtime.occupancy_grid import OccupancyGrid
-from runtime.pose import between, compose, inverse
-from runtime.relocalization import Located, Relocalizer
-from runtime.scan import PointScan
-from runtime.scan_matcher import ScanMatcher
-from runtime.step_result import StepResult
+from swarmslam.runtime.config import SlamConfig
+from swarmslam.runtime.front_end import TRAJECTORY_STATUS, odometry_motion
+from swarmslam.runtime.map_tracking import MapTracker, SavedMap
+from swarmslam.runtime.node_scans import NodeScans
+from swarmslam.runtime.occupancy_grid import OccupancyGrid
+from swarmslam.runtime.pose import between, compose, inverse
+from swarmslam.runtime.relocalization import Located, Relocalizer
+from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.scan_matcher import ScanMatcher
+from swarmslam.runtime.step_result import StepResult
 
 SEARCHING, CONFIRMING, TRACKING = "searching", "confirming", "tracking"
 

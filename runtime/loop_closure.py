@@ -28,8 +28,8 @@ import math
 import numpy as np
 from numba import njit
 
-from runtime.config import LoopClosureConfig
-from runtime.pose import between
+from swarmslam.runtime.config import LoopClosureConfig
+from swarmslam.runtime.pose import between
 
 CHI2_2D_95 = 5.991
 

@@ -24,12 +24,12 @@ import math
 import numpy as np
 from numba import njit
 
-from runtime.config import SlamConfig
-from runtime.front_end import contradicts_odometry
-from runtime.node_scans import NodeScans
-from runtime.pose import between, compose
-from runtime.scan import PointScan
-from runtime.scan_matcher import ScanMatcher
+from swarmslam.runtime.config import SlamConfig
+from swarmslam.runtime.front_end import contradicts_odometry
+from swarmslam.runtime.node_scans import NodeScans
+from swarmslam.runtime.pose import between, compose
+from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.scan_matcher import ScanMatcher
 
 
 @njit(cache=True)
@@ -78,7 +78,7 @@ class SavedMap:
 
     @classmethod
     def from_state(cls, slam_state: dict, max_points: int) -> SavedMap:
-        """From a :meth:`runtime.slam.GraphSlam.state` (a session's ``slam`` entry)."""
+        """From a :meth:`swarmslam.runtime.slam.GraphSlam.state` (a session's ``slam`` entry)."""
         poses = np.asarray(slam_state["graph"]["poses"], dtype=np.float64)
         n = len(poses)
         if poses.ndim != 2 or poses.shape[1] != 3:

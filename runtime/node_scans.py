@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from runtime.pose import compose, place_points_nb
-from runtime.scan import PointScan
+from swarmslam.runtime.pose import compose, place_points_nb
+from swarmslam.runtime.scan import PointScan
 
 
 class NodeScans:

@@ -15,9 +15,9 @@ import math
 
 from numba import njit
 
-from runtime.config import KERNEL_NAMES
-from runtime.distance_field import INV_RES, NX, NY, OX, OY, R2, lookup_grid
-from runtime.local_map import UNKNOWN
+from swarmslam.runtime.config import KERNEL_NAMES
+from swarmslam.runtime.distance_field import INV_RES, NX, NY, OX, OY, R2, lookup_grid
+from swarmslam.runtime.local_map import UNKNOWN
 
 KERNEL_PAPER = KERNEL_NAMES.index("paper")
 KERNEL_CAUCHY = KERNEL_NAMES.index("cauchy")

@@ -1,7 +1,7 @@
 """The global occupancy grid (Alg. 4's Generate_Global_Map): log-odds over a fixed-capacity
 grid, rays traced from each scan's optimised pose (Bresenham), in compiled code.
 
-Output convention is ROS map_server's (see :mod:`scripts.map_io`): probability of occupancy
+Output convention is ROS map_server's (see :mod:`swarmslam.map_io`): probability of occupancy
 from the log-odds, thresholds 0.65 / 0.196.
 """
 
@@ -95,7 +95,7 @@ class OccupancyGrid:
     @classmethod
     def covering_nodes(cls, poses, nodes, n_nodes: int, map_config) -> OccupancyGrid:
         """An empty grid over the first ``n_nodes`` node poses and their stored scans
-        (a :class:`runtime.node_scans.NodeScans`) within ``map_config.max_range``."""
+        (a :class:`swarmslam.runtime.node_scans.NodeScans`) within ``map_config.max_range``."""
         m = map_config
         return cls.covering(nodes.extent_points(poses, n_nodes, m.max_range), m.resolution,
                             m.margin, m.max_cells)
@@ -108,7 +108,7 @@ class OccupancyGrid:
         return grid.draw_nodes(poses, nodes, n_nodes, map_config.max_range)
 
     def draw_nodes(self, poses, nodes, n_nodes: int, max_range: float) -> OccupancyGrid:
-        """Draw the first ``n_nodes`` node scans (a :class:`runtime.node_scans.NodeScans`)
+        """Draw the first ``n_nodes`` node scans (a :class:`swarmslam.runtime.node_scans.NodeScans`)
         from ``poses`` into the grid (added to what is in it); returns the grid."""
         for k in range(n_nodes):
             self.integrate(poses[k], nodes.scan_points(k), max_range)

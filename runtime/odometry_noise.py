@@ -41,7 +41,7 @@ import math
 
 import numpy as np
 
-from runtime.pose import between, compose
+from swarmslam.runtime.pose import between, compose
 
 MAD_TO_SIGMA = 1.4826  # σ of a normal distribution over its median absolute deviation
 

@@ -2,7 +2,7 @@
 (docs/method.md §6.1, "Odometry's distance scale").
 
 Along a plain corridor the match is degenerate and odometry's prediction stands in
-(runtime.degeneracy): the map there is as long as odometry says. A wheel 1% larger than the
+(swarmslam.runtime.degeneracy): the map there is as long as odometry says. A wheel 1% larger than the
 robot believes makes every such stretch 1% short, and no loop can tell — a ring of corridors
 scaled down is still closed. What tells is the node steps whose match pinned every direction:
 over a straight one the matched translation against odometry's is the scale of this robot's
@@ -42,7 +42,7 @@ import math
 import numpy as np
 from numba import njit
 
-from runtime.odometry_noise import median_and_spread
+from swarmslam.runtime.odometry_noise import median_and_spread
 
 
 @njit(cache=True)

@@ -30,11 +30,11 @@ import math
 import numpy as np
 from numba import njit
 
-from runtime.config import RelocalizationConfig
-from runtime.distance_field import splat_segment
-from runtime.node_scans import NodeScans
-from runtime.occupancy_grid import integrate_scan
-from runtime.pose import compose
+from swarmslam.runtime.config import RelocalizationConfig
+from swarmslam.runtime.distance_field import splat_segment
+from swarmslam.runtime.node_scans import NodeScans
+from swarmslam.runtime.occupancy_grid import integrate_scan
+from swarmslam.runtime.pose import compose
 
 HIT_MAX = 255  # a point exactly on a surface
 # Columns of a search candidate (stack and root rows): score, level, heading, row, column.

@@ -17,7 +17,7 @@ import math
 import numpy as np
 from numba import njit
 
-from runtime.pose import wrap_angle_nb
+from swarmslam.runtime.pose import wrap_angle_nb
 
 ODOMETRY = 0
 LOOP = 1

@@ -8,9 +8,9 @@
 
 1. search, coarse to fine: an exhaustive branch and bound over every standable cell and
    heading of a coarse hit grid (``coarse_resolution``, blurred by ``coarse_hit_sigma``) gives
-   the best distinct candidates (:func:`runtime.place_search.branch_and_bound`); each is then
+   the best distinct candidates (:func:`swarmslam.runtime.place_search.branch_and_bound`); each is then
    scored at every pose of a small window on the fine grid
-   (:func:`runtime.place_search.refine_candidates`). A map of at most ``exact_max_cells``
+   (:func:`swarmslam.runtime.place_search.refine_candidates`). A map of at most ``exact_max_cells``
    fine cells is searched by one exact branch and bound on the fine grid instead;
 2. ambiguity: every distinct pose scoring at least ``ambiguity_ratio`` of the best is kept —
    any such rival is a different explanation about as good, and the answer is
@@ -18,7 +18,7 @@
 3. polish: the swarm (Alg. 5) aligns the scan with the nearest node scans in a small box around
    the grid's answer, as loop closure does.
 
-Confirmation (:mod:`runtime.localization`) tracks the candidates over ``confirm_seconds`` of
+Confirmation (:mod:`swarmslam.runtime.localization`) tracks the candidates over ``confirm_seconds`` of
 scans and searches the newest again. :meth:`Relocalizer.relocalize_merged` merges such scans —
 placed by the motion tracked between them — into one query, meant to tell apart what one scan
 cannot; measured, it rarely does in corridors (README, ``bench localize``).
@@ -31,9 +31,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from runtime.config import SlamConfig
-from runtime.node_scans import NodeScans
-from runtime.place_search import (
+from swarmslam.runtime.config import SlamConfig
+from swarmslam.runtime.node_scans import NodeScans
+from swarmslam.runtime.place_search import (
     HIT_MAX,
     S_PHASE,
     SEARCH_STATE,
@@ -45,9 +45,9 @@ from runtime.place_search import (
     rotate_query,
     select_query,
 )
-from runtime.pose import between, compose, wrap_angle
-from runtime.scan import PointScan
-from runtime.scan_matcher import ScanMatcher
+from swarmslam.runtime.pose import between, compose, wrap_angle
+from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.scan_matcher import ScanMatcher
 
 
 @dataclass(frozen=True)
@@ -261,7 +261,7 @@ class Relocalizer:
             self._stack, self._coarse_found))
 
     def _branch_and_bound(self, budget: int, *args):
-        """:func:`runtime.place_search.branch_and_bound` over ``args`` begun afresh, as a
+        """:func:`swarmslam.runtime.place_search.branch_and_bound` over ``args`` begun afresh, as a
         generator yielding between slices of ``budget`` blocks; returns ``(how many, blocks
         scored)``."""
         self._state[S_PHASE] = 0

@@ -19,20 +19,20 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from runtime.config import MatcherConfig
-from runtime.distance_field import N_META, build_distance_field
-from runtime.local_map import build_local_map, robot_square
-from runtime.objectives import (
+from swarmslam.runtime.config import MatcherConfig
+from swarmslam.runtime.distance_field import N_META, build_distance_field
+from swarmslam.runtime.local_map import build_local_map, robot_square
+from swarmslam.runtime.objectives import (
     KERNELS,
     cost_hessian,
     inlier_fraction,
     scan_to_map_cost,
     scan_to_scan_error,
 )
-from runtime.optimizers import SwarmOptimizer, ask, start, tell
-from runtime.optimizers.workspace import BEST_VAL, EVALUATIONS, ITERATION, reset_run
-from runtime.scan import PointScan
-from runtime.threshold import RejectionThreshold
+from swarmslam.runtime.optimizers import SwarmOptimizer, ask, start, tell
+from swarmslam.runtime.optimizers.workspace import BEST_VAL, EVALUATIONS, ITERATION, reset_run
+from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.threshold import RejectionThreshold
 
 # Layout of the ``settings`` array handed to the compiled kernel.
 (

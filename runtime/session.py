@@ -3,7 +3,7 @@
 This module is a codec and knows nothing of what it stores: a *state* is a nested dict whose
 leaves are numpy arrays or JSON values (numbers, strings, lists), as every stateful component's
 ``state()`` returns it and its ``restore()`` takes it back
-(:meth:`runtime.fixed_rate.SlamRuntime.state`). docs/formats.md §4 has the layout.
+(:meth:`swarmslam.runtime.fixed_rate.SlamRuntime.state`). docs/formats.md §4 has the layout.
 
 Format: a NumPy ``.npz`` archive (uncompressed): one ``meta`` entry (JSON: the format, its
 version and the state's JSON leaves), one entry per array leaf named by its dotted path, and a
@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.writers import write_bytes_atomic
+from swarmslam.runtime.writers import write_bytes_atomic
 
 FORMAT = "swarmslam-session"
 # 5: the wide search's recent corrections; 4: the back end's wide loop search; 3: loop edges

@@ -1,4 +1,4 @@
-"""The synthetic drive the runtime warms up on (:meth:`runtime.fixed_rate.SlamRuntime.warm_up`):
+"""The synthetic drive the runtime warms up on (:meth:`swarmslam.runtime.fixed_rate.SlamRuntime.warm_up`):
 scans of a line-segment world along a loop, so that every compiled path — matching, node
 insertion, loop closure, optimisation — runs once before the first real tick. It is part of the
 core because a robot must warm up without a simulator or a log; tests, demos and soak runs use
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from runtime.pose import between, compose
+from swarmslam.runtime.pose import between, compose
 
 
 def room_world(seed: int = 0, size=(10.0, 8.0), boxes: int = 6, walls: int = 2,

@@ -7,7 +7,7 @@ candidate radius reach (fr-clinic: 11.5 m after a 2,600 s loop). The ordinary se
 nothing, or matches the scan to the wrong corridor nearby. Here the scans of the *old* nodes
 (more than ``wide_min_gap`` nodes back, within reach of the estimate) are rendered into a hit
 grid centred on the estimate, and an exhaustive branch and bound (the relocalization's,
-:func:`runtime.place_search.branch_and_bound`) scores the node's scan at every position within
+:func:`swarmslam.runtime.place_search.branch_and_bound`) scores the node's scan at every position within
 the window and every heading within ``wide_angle`` of it. The window's half-width grows with
 the path since the last closure with the old map (``wide_drift`` of it, from ``wide_radius``
 up to ``wide_max_radius``), and so do the headings (``wide_turn_drift`` of it, from
@@ -37,9 +37,9 @@ import math
 import numpy as np
 from numba import njit
 
-from runtime.config import LoopClosureConfig
-from runtime.loop_closure import nearby_nodes
-from runtime.place_search import (
+from swarmslam.runtime.config import LoopClosureConfig
+from swarmslam.runtime.loop_closure import nearby_nodes
+from swarmslam.runtime.place_search import (
     HIT_MAX,
     S_PHASE,
     SEARCH_STATE,
@@ -54,8 +54,8 @@ from runtime.place_search import (
     select_query,
     splat_scans,
 )
-from runtime.pose import between_nb, compose_nb, wrap_angle_nb
-from runtime.scan import PointScan
+from swarmslam.runtime.pose import between_nb, compose_nb, wrap_angle_nb
+from swarmslam.runtime.scan import PointScan
 
 
 @njit(cache=True)

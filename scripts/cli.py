@@ -11,7 +11,7 @@ import sys
 import time
 from pathlib import Path
 
-from runtime.config import (
+from swarmslam.runtime.config import (
     DEFAULT_PRESET,
     OPTIMIZERS,
     PRESETS,
@@ -21,14 +21,14 @@ from runtime.config import (
     session_changes,
     to_toml,
 )
-from runtime.inbox import skipped_text
-from runtime.writers import write_bytes_atomic
-from scripts.run_view import RunWatch
+from swarmslam.runtime.inbox import skipped_text
+from swarmslam.runtime.writers import write_bytes_atomic
+from swarmslam.run_view import RunWatch
 
 
 def _bench_matcher(args) -> int:
-    from scripts.bench.matcher import DATASETS, bench_matcher
-    from scripts.datasets import find_datasets
+    from swarmslam.bench.matcher import DATASETS, bench_matcher
+    from swarmslam.datasets import find_datasets
 
     data = find_datasets(args.data)
     optimizers = tuple(o.strip() for o in args.optimizers.split(",") if o.strip())
@@ -44,8 +44,8 @@ def _bench_matcher(args) -> int:
 
 
 def _bench_posegraph(args) -> int:
-    from scripts.bench.posegraph import bench_posegraph
-    from scripts.datasets import find_datasets
+    from swarmslam.bench.posegraph import bench_posegraph
+    from swarmslam.datasets import find_datasets
 
     bench_posegraph(find_datasets(args.data), args.repeats, args.json, plots=args.plots)
     return 0
@@ -53,7 +53,7 @@ def _bench_posegraph(args) -> int:
 
 def _logs(args) -> tuple[str, ...]:
     """The ``--datasets`` names, each one ``bench slam`` knows."""
-    from scripts.bench.slam import LOGS
+    from swarmslam.bench.slam import LOGS
 
     logs = tuple(d.strip() for d in args.datasets.split(",") if d.strip())
     for d in logs:
@@ -63,8 +63,8 @@ def _logs(args) -> tuple[str, ...]:
 
 
 def _bench_slam(args) -> int:
-    from scripts.bench.slam import bench_slam
-    from scripts.datasets import find_datasets
+    from swarmslam.bench.slam import bench_slam
+    from swarmslam.datasets import find_datasets
 
     logs = _logs(args)
     modes = {"both": (True, False), "odometry": (True,), "scans": (False,)}[args.modes]
@@ -76,8 +76,8 @@ def _bench_slam(args) -> int:
 
 
 def _bench_localize(args) -> int:
-    from scripts.bench.localize import bench_localize
-    from scripts.datasets import find_datasets
+    from swarmslam.bench.localize import bench_localize
+    from swarmslam.datasets import find_datasets
 
     logs = _logs(args)
     if args.queries < 1:
@@ -90,7 +90,7 @@ def _bench_localize(args) -> int:
 
 
 def _bench_generalization(args) -> int:
-    from scripts.bench.generalization import bench_generalization, select
+    from swarmslam.bench.generalization import bench_generalization, select
 
     cases = select([n.strip() for n in (args.cases or "").split(",") if n.strip()])
     bench_generalization(cases, args.json, args.keep, _config(args, DEFAULT_PRESET),
@@ -101,7 +101,7 @@ def _bench_generalization(args) -> int:
 
 
 def _bench_env(args) -> int:
-    from scripts.bench.env import bench_env
+    from swarmslam.bench.env import bench_env
 
     bench_env(args.world, args.steps, args.slam_steps, args.json, plots=args.plots)
     if args.json:
@@ -110,8 +110,8 @@ def _bench_env(args) -> int:
 
 
 def _bench_runtime(args) -> int:
-    from scripts.bench.runtime import bench_runtime, bench_soak
-    from scripts.datasets import find_datasets
+    from swarmslam.bench.runtime import bench_runtime, bench_soak
+    from swarmslam.datasets import find_datasets
 
     if args.soak is not None:
         bench_soak(args.soak, args.json, plots=args.plots)
@@ -136,7 +136,7 @@ def _config(args, default_preset: str) -> SlamConfig | None:
 
 def _session_changes(args) -> dict | None:
     """With ``--localize``/``--resume``: the changes ``--config FILE`` makes to the session's
-    own configuration (only its search and tracking: :data:`runtime.config.SESSION_SECTIONS`).
+    own configuration (only its search and tracking: :data:`swarmslam.runtime.config.SESSION_SECTIONS`).
     None without a session."""
     if not (args.localize or args.resume):
         return None
@@ -156,7 +156,7 @@ def _config_show(args) -> int:
 
 
 def _replay(args) -> int:
-    from scripts.replay import replay
+    from swarmslam.replay import replay
 
     changes = _session_changes(args)
     m = replay(args.log, args.relations, args.optimizer, not args.no_odometry, args.out,
@@ -190,7 +190,7 @@ def _replay(args) -> int:
 
 
 def _sweep(args) -> int:
-    from scripts.sweep import format_summary, read_spec, summarise, sweep, write_summary
+    from swarmslam.sweep import format_summary, read_spec, summarise, sweep, write_summary
 
     spec = read_spec(args.spec, args.data)
     if args.results:
@@ -202,7 +202,7 @@ def _sweep(args) -> int:
 
 
 def _tune(args) -> int:
-    from scripts.tune import read_tune_spec, tune_config
+    from swarmslam.tune import read_tune_spec, tune_config
 
     spec = read_tune_spec(args.spec, args.data)
     if args.out:
@@ -214,7 +214,7 @@ def _tune(args) -> int:
 
 
 def _rllib(args) -> int:
-    from scripts.train_rllib import train_ppo
+    from swarmslam.train_rllib import train_ppo
 
     env_config = {"slam": args.slam, "world": args.world,
                   "max_episode_steps": args.episode_steps}
@@ -226,22 +226,22 @@ def _rllib(args) -> int:
 
 
 def _bench_sweep(args) -> int:
-    from scripts.bench.sweep import bench_sweep
-    from scripts.sweep import read_spec
+    from swarmslam.bench.sweep import bench_sweep
+    from swarmslam.sweep import read_spec
 
     bench_sweep(read_spec(args.spec, args.data), args.workers, args.json)
     return 0
 
 
 def _config_fields(args) -> int:
-    from scripts.config_doc import fields_markdown
+    from swarmslam.config_doc import fields_markdown
 
     sys.stdout.write(fields_markdown())
     return 0
 
 
 def _relations_audit(args) -> int:
-    from scripts.relations_audit import audit_command
+    from swarmslam.relations_audit import audit_command
 
     if not 0 < args.min_gain <= 1:
         raise ValueError(f"--min-gain must be in (0, 1], got {args.min_gain}")
@@ -251,7 +251,7 @@ def _relations_audit(args) -> int:
 
 
 def _simlog(args) -> int:
-    from scripts.simlog import write_simlog
+    from swarmslam.simlog import write_simlog
 
     if args.seconds is not None and not args.seconds > 0:
         raise ValueError(f"--seconds must be > 0, got {args.seconds}")
@@ -278,7 +278,7 @@ def _sigterm_as_ctrl_c():
 
 
 def _lidar(args) -> int:
-    from scripts.live import run_live
+    from swarmslam.live import run_live
 
     with _sigterm_as_ctrl_c():
         changes = _session_changes(args)
@@ -291,14 +291,14 @@ def _lidar(args) -> int:
 
 
 def _emulate(args) -> int:
-    from hardware.emulator import Faults, VirtualRPLidar
+    from swarmslam.hardware.emulator import Faults, VirtualRPLidar
 
     if args.log:
-        from scripts.emulator_sources import CarmenSource
+        from swarmslam.emulator_sources import CarmenSource
 
         source, what = CarmenSource(args.log), f"log {args.log}"
     else:
-        from scripts.emulator_sources import WorldSource
+        from swarmslam.emulator_sources import WorldSource
 
         source, what = WorldSource(args.world, seed=args.seed), f"world {args.world}"
     faults = Faults.parse(args.faults or "")
@@ -324,12 +324,12 @@ def _emulate(args) -> int:
 
 def _demo(args) -> int:
     if args.matcher_only:
-        from scripts.matcher_demo import run_demo
+        from swarmslam.matcher_demo import run_demo
 
         run_demo(out_dir=Path(args.out), optimizer=args.optimizer or "abc", seed=args.seed,
                  steps=args.steps or 120)
         return 0
-    from scripts.demo import run_exploration_demo
+    from swarmslam.demo import run_exploration_demo
 
     run_exploration_demo(Path(args.out), world=args.world, optimizer=args.optimizer,
                          seed=args.seed, max_steps=args.steps or 1500,

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import fields, is_dataclass
 
-from runtime.config import SlamConfig, _toml_value
+from swarmslam.runtime.config import SlamConfig, _toml_value
 
 
 def _allowed(meta) -> str:

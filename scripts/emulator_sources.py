@@ -16,8 +16,8 @@ import threading
 import gymnasium as gym
 import numpy as np
 
-from hardware.sources import robot_angles
-from scripts.carmen import read_carmen
+from swarmslam.hardware.sources import robot_angles
+from swarmslam.carmen import read_carmen
 from swarmslam_sim.exploration import FrontierExplorer
 from swarmslam_sim.raycast import cast_scan
 

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.pose_graph import LOOP, ODOMETRY, PoseGraph
-from runtime.text_records import DataFormatError, parse_numbers, records
-from runtime.writers import write_text_atomic
+from swarmslam.runtime.pose_graph import LOOP, ODOMETRY, PoseGraph
+from swarmslam.runtime.text_records import DataFormatError, parse_numbers, records
+from swarmslam.runtime.writers import write_text_atomic
 
 
 class G2oFormatError(DataFormatError):

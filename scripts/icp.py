@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from runtime.pose import compose, transform_points
+from swarmslam.runtime.pose import compose, transform_points
 
 
 def icp(reference, current, initial=(0.0, 0.0, 0.0), max_iterations=50, tolerance=1e-6,

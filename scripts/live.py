@@ -15,14 +15,14 @@ import threading
 import time
 from pathlib import Path
 
-from hardware.driver import RPLidar
-from hardware.models import model as get_model
-from runtime.config import SlamConfig, override, preset
-from runtime.fixed_rate import SlamRuntime
-from runtime.writers import write_json_atomic
-from scripts.outputs import check_writable, clean_stale, output_set, write_results
-from scripts.run_view import frame_of
-from scripts.tum import write_tum
+from swarmslam.hardware.driver import RPLidar
+from swarmslam.hardware.models import model as get_model
+from swarmslam.runtime.config import SlamConfig, override, preset
+from swarmslam.runtime.fixed_rate import SlamRuntime
+from swarmslam.runtime.writers import write_json_atomic
+from swarmslam.outputs import check_writable, clean_stale, output_set, write_results
+from swarmslam.run_view import frame_of
+from swarmslam.tum import write_tum
 
 
 def slam_config_for(model_name: str, rate_hz: float | None = None) -> SlamConfig:
@@ -41,8 +41,8 @@ def run_live(port: str, model: str = "a1", mode: str = "typical", out_dir="swarm
     overrides its tick rate. ``resume``: a session extended from wherever the scanner is in
     its map (found first); ``localize``: a session to localize in, never changed. Both take
     the session's configuration, with ``session_changes``
-    (:func:`runtime.config.session_changes`: search and tracking only).
-    ``watch``: a :class:`scripts.run_view.RunWatch` shown after every tick that took a scan.
+    (:func:`swarmslam.runtime.config.session_changes`: search and tracking only).
+    ``watch``: a :class:`swarmslam.run_view.RunWatch` shown after every tick that took a scan.
     ``baud``: a rate to switch the link to after connecting (where the model allows)."""
     out = Path(out_dir)
     check_writable(out)

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.occupancy_grid import OccupancyGrid, probability
-from runtime.writers import write_bytes_atomic, write_text_atomic
-from scripts.png import write_png
+from swarmslam.runtime.occupancy_grid import OccupancyGrid, probability
+from swarmslam.runtime.writers import write_bytes_atomic, write_text_atomic
+from swarmslam.png import write_png
 
 OCCUPIED_THRESH = 0.65
 FREE_THRESH = 0.196

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from runtime.occupancy_grid import OccupancyGrid, probability
-from scripts.map_io import trinary_values
+from swarmslam.runtime.occupancy_grid import OccupancyGrid, probability
+from swarmslam.map_io import trinary_values
 
 
 def map_nodes(slam):

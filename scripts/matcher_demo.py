@@ -14,15 +14,15 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.pose import between, compose, transform_points
-from runtime.scan import PointScan
-from runtime.scan_matcher import MatcherConfig, ScanMatcher
-from runtime.warm_up import loop_path, room_world, scan_at
-from runtime.writers import write_json_atomic
-from scripts.metrics import relative_errors
-from scripts.png import write_png
-from scripts.progress import Progress
-from scripts.tum import write_tum
+from swarmslam.runtime.pose import between, compose, transform_points
+from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.scan_matcher import MatcherConfig, ScanMatcher
+from swarmslam.runtime.warm_up import loop_path, room_world, scan_at
+from swarmslam.runtime.writers import write_json_atomic
+from swarmslam.metrics import relative_errors
+from swarmslam.png import write_png
+from swarmslam.progress import Progress
+from swarmslam.tum import write_tum
 from swarmslam_sim.canvas import Canvas
 
 ANGLES = np.deg2rad(np.arange(-180.0, 180.0, 1.0))

@@ -26,7 +26,7 @@ import math
 import numpy as np
 from mcap.writer import Writer
 
-from runtime.writers import AtomicFile
+from swarmslam.runtime.writers import AtomicFile
 
 _TIME = {"type": "object", "properties": {"sec": {"type": "integer", "minimum": 0},
                                           "nsec": {"type": "integer", "minimum": 0}}}

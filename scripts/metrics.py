@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from runtime.pose import between, wrap_angle
+from swarmslam.runtime.pose import between, wrap_angle
 
 
 def relative_errors(estimated, reference):

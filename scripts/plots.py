@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.writers import write_bytes_atomic
+from swarmslam.runtime.writers import write_bytes_atomic
 
 
 def require_matplotlib() -> None:

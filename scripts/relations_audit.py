@@ -16,7 +16,7 @@ The audit also tells whose clock the reference's headings keep, the scans' or od
 scores the trajectory again on that clock (scripts/relations_clock.py).
 
     >>> import numpy as np
-    >>> from scripts.relations import Relations
+    >>> from swarmslam.relations import Relations
     >>> wall = np.c_[np.linspace(-2, 2, 81), np.full(81, 3.0)]   # a wall 3 m ahead ...
     >>> side = np.c_[np.full(61, 2.0), np.linspace(-1, 2, 61)]   # ... and one to the left
     >>> room = np.r_[wall, side]
@@ -36,18 +36,18 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from runtime.pose import between, compose, transform_points
-from runtime.scan import PointScan
-from runtime.writers import write_json_atomic
-from scripts.carmen import read_carmen
-from scripts.icp import icp
-from scripts.metrics import LOCAL_GAP, kummerle, match_relations, relation_errors
-from scripts.plots import relations_audit_figure, require_matplotlib
-from scripts.progress import Progress
-from scripts.relations import Relations, read_relations
-from scripts.relations_clock import AGREEMENT_DEG, reference_clock
-from scripts.replay import robot_frame_scan
-from scripts.tum import read_tum
+from swarmslam.runtime.pose import between, compose, transform_points
+from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.writers import write_json_atomic
+from swarmslam.carmen import read_carmen
+from swarmslam.icp import icp
+from swarmslam.metrics import LOCAL_GAP, kummerle, match_relations, relation_errors
+from swarmslam.plots import relations_audit_figure, require_matplotlib
+from swarmslam.progress import Progress
+from swarmslam.relations import Relations, read_relations
+from swarmslam.relations_clock import AGREEMENT_DEG, reference_clock
+from swarmslam.replay import robot_frame_scan
+from swarmslam.tum import read_tum
 
 INLIER_DISTANCE = 0.2  # m: a point this near the other scan's points fits it
 MIN_GAIN = 0.2  # share of points: ICP from the relation fitting this many more contradicts it
@@ -158,7 +158,7 @@ def scored_apart(stamps, poses, relations: Relations, audit: Audit) -> dict:
 def audit_command(log_path, relations_path, trajectory_path=None, json_path=None,
                   min_gain: float = MIN_GAIN, plots=None) -> dict:
     """The audit of ``relations_path`` against ``log_path``'s scans and the reference's clock
-    (``clock``: scripts.relations_clock.reference_clock), printed; with a TUM
+    (``clock``: swarmslam.relations_clock.reference_clock), printed; with a TUM
     ``trajectory_path``, that trajectory scored apart (:func:`scored_apart`) and on the
     reference's clock; ``plots``: a folder for the figure."""
     if plots:

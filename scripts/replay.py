@@ -11,18 +11,18 @@ import time
 
 import numpy as np
 
-from runtime.config import SlamConfig, override
-from runtime.fixed_rate import SlamRuntime
-from runtime.pose import compose
-from runtime.scan import PointScan, ranges_to_points
-from runtime.writers import write_json_atomic
-from scripts.carmen import read_carmen
-from scripts.metrics import kummerle, match_relations
-from scripts.outputs import check_writable, output_set, write_results
-from scripts.progress import Progress
-from scripts.relations import read_relations
-from scripts.run_view import frame_of
-from scripts.tum import write_tum
+from swarmslam.runtime.config import SlamConfig, override
+from swarmslam.runtime.fixed_rate import SlamRuntime
+from swarmslam.runtime.pose import compose
+from swarmslam.runtime.scan import PointScan, ranges_to_points
+from swarmslam.runtime.writers import write_json_atomic
+from swarmslam.carmen import read_carmen
+from swarmslam.metrics import kummerle, match_relations
+from swarmslam.outputs import check_writable, output_set, write_results
+from swarmslam.progress import Progress
+from swarmslam.relations import read_relations
+from swarmslam.run_view import frame_of
+from swarmslam.tum import write_tum
 
 
 def replay_config(config: SlamConfig | None = None, optimizer: str | None = None,
@@ -78,8 +78,8 @@ def replay(log_path, relations_path=None, optimizer: str | None = None, odometry
     ``localize``: a session file to localize in (its map is not changed; the outputs are the
     trajectory and ``localization.json``). ``resume``: a session to extend from wherever the
     log starts in it (multi-session mapping). Both take their configuration from the session,
-    with ``session_changes`` (:func:`runtime.config.session_changes`: search and tracking only).
-    ``start``: the first scan replayed. ``watch``: a :class:`scripts.run_view.RunWatch` shown
+    with ``session_changes`` (:func:`swarmslam.runtime.config.session_changes`: search and tracking only).
+    ``start``: the first scan replayed. ``watch``: a :class:`swarmslam.run_view.RunWatch` shown
     every tick (closed at the end)."""
     return replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, seed,
                       config, label, schedule, localize=localize, resume=resume,

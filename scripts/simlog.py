@@ -17,11 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.pose import between
-from runtime.writers import write_bytes_atomic, write_text_atomic
-from scripts.carmen import flaser_line, odom_line, robotlaser1_line
-from scripts.relations import relations_text
-from scripts.tum import tum_lines
+from swarmslam.runtime.pose import between
+from swarmslam.runtime.writers import write_bytes_atomic, write_text_atomic
+from swarmslam.carmen import flaser_line, odom_line, robotlaser1_line
+from swarmslam.relations import relations_text
+from swarmslam.tum import tum_lines
 from swarmslam_sim.survey import Survey, run_survey, site
 from swarmslam_sim.world import save_world
 

@@ -19,7 +19,7 @@ A spec (every field but ``logs`` optional)::
 
 Workers read the logs from the paths the driver resolves (a folder every worker can read:
 the local machine, or a file system the cluster shares); nothing is shipped through the
-object store. Each run is :func:`scripts.replay.replay_run` with the seed, so its figures are
+object store. Each run is :func:`swarmslam.replay.replay_run` with the seed, so its figures are
 those of ``swarmslam replay`` with that seed.
 """
 
@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 import tomllib
 
-from runtime.config import (
+from swarmslam.runtime.config import (
     DEFAULT_PRESET,
     OPTIMIZERS,
     ConfigError,
@@ -45,11 +45,11 @@ from runtime.config import (
     override,
     preset,
 )
-from runtime.writers import write_json_atomic
-from scripts.bench.slam import LOGS
-from scripts.datasets import find_datasets, require
-from scripts.progress import Progress
-from scripts.replay import replay_run
+from swarmslam.runtime.writers import write_json_atomic
+from swarmslam.bench.slam import LOGS
+from swarmslam.datasets import find_datasets, require
+from swarmslam.progress import Progress
+from swarmslam.replay import replay_run
 
 # what a results line keeps of a replay's metrics (the runtime's full report stays out)
 KEPT = ("eT", "eT_std", "eR_deg", "eR_std", "eT_local", "eR_local_deg", "eT_global",

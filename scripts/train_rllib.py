@@ -15,7 +15,7 @@ from pathlib import Path
 import gymnasium as gym
 
 import swarmslam_sim  # noqa: F401  (registers SwarmSlam-v0, in each env runner's process too)
-from scripts.sweep import ray_session
+from swarmslam.sweep import ray_session
 
 
 class RLlibEnv(gym.Wrapper):

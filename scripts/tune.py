@@ -31,10 +31,10 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.config import ConfigError, override, to_toml
-from runtime.writers import write_bytes_atomic, write_json_atomic
-from scripts.bench.slam import PUBLISHED
-from scripts.sweep import (
+from swarmslam.runtime.config import ConfigError, override, to_toml
+from swarmslam.runtime.writers import write_bytes_atomic, write_json_atomic
+from swarmslam.bench.slam import PUBLISHED
+from swarmslam.sweep import (
     Run,
     SpecError,
     SweepSpec,

@@ -11,7 +11,7 @@ from swarmslam_sim.world import World, load_world
 
 
 def builtin_worlds() -> list[str]:
-    return sorted(p.name[: -len(".world")] for p in resources.files("worlds").iterdir()
+    return sorted(p.name[: -len(".world")] for p in resources.files("swarmslam.worlds").iterdir()
                   if p.name.endswith(".world"))
 
 
@@ -23,7 +23,7 @@ def get_world(spec, seed: int = 0) -> World:
     spec = str(spec)
     if spec in GENERATORS:
         return GENERATORS[spec](seed)
-    packaged = resources.files("worlds") / f"{spec}.world"
+    packaged = resources.files("swarmslam.worlds") / f"{spec}.world"
     if packaged.is_file():
         with resources.as_file(packaged) as p:
             return load_world(p)

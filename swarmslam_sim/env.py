@@ -10,11 +10,11 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from runtime.config import OPTIMIZERS, SlamConfig, override, simulated
-from runtime.fixed_rate import SlamRuntime
-from runtime.localization import TRACKING
-from runtime.pose import between_nb, compose_nb, wrap_angle, wrap_angle_nb
-from runtime.scan import PointScan, ranges_to_points
+from swarmslam.runtime.config import OPTIMIZERS, SlamConfig, override, simulated
+from swarmslam.runtime.fixed_rate import SlamRuntime
+from swarmslam.runtime.localization import TRACKING
+from swarmslam.runtime.pose import between_nb, compose_nb, wrap_angle, wrap_angle_nb
+from swarmslam.runtime.scan import PointScan, ranges_to_points
 from swarmslam_sim.catalog import get_world
 from swarmslam_sim.lidar import Lidar, lidar_config
 from swarmslam_sim.mapping import crop_probability, wall_clearance, world_grid
@@ -130,7 +130,7 @@ class SwarmSlamEnv(gym.Env):
         self.dt = 1.0 / self.lidar.config.rate_hz
         self.substeps = max(1, math.ceil(self.dt / SUBSTEP - 1e-9))
         lc = self.lidar.config
-        # The simulator's preset (runtime.config.simulated) sized for this LiDAR, in the
+        # The simulator's preset (swarmslam.runtime.config.simulated) sized for this LiDAR, in the
         # lockstep schedule: one tick per env step, the whole back end each tick, so that a
         # seed gives the same episode bit for bit.
         config = slam_config or simulated(beams=lc.beams, min_range=lc.min_range,

@@ -16,7 +16,7 @@ import numpy as np
 from numba import njit
 from scipy import ndimage
 
-from runtime.occupancy_grid import OccupancyGrid
+from swarmslam.runtime.occupancy_grid import OccupancyGrid
 from swarmslam_sim.mapping import grid_cell
 
 NO_GOAL = -1

@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit
 from scipy import ndimage
 
-from runtime.occupancy_grid import OccupancyGrid
+from swarmslam.runtime.occupancy_grid import OccupancyGrid
 from swarmslam_sim.raycast import point_segment_distance
 from swarmslam_sim.world import World
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from runtime.occupancy_grid import OccupancyGrid
-from runtime.pose import transform_points
+from swarmslam.runtime.occupancy_grid import OccupancyGrid
+from swarmslam.runtime.pose import transform_points
 from swarmslam_sim.canvas import Canvas
 
 PIXELS_PER_METRE = 40

@@ -2,9 +2,9 @@
 
 import numpy as np
 
-from runtime.pose import between
-from runtime.scan import PointScan
-from runtime.slam import GraphSlam
+from swarmslam.runtime.pose import between
+from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.slam import GraphSlam
 
 
 def slam_over(survey, config, seed: int = 0) -> GraphSlam:

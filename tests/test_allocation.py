@@ -10,10 +10,10 @@ import tracemalloc
 
 import numpy as np
 
-from runtime.optimizers import SwarmConfig
-from runtime.scan import PointScan
-from runtime.scan_matcher import N_OUT, MatcherConfig, ScanMatcher
-from runtime.warm_up import pose_after, room_world, scan_at
+from swarmslam.runtime.optimizers import SwarmConfig
+from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.scan_matcher import N_OUT, MatcherConfig, ScanMatcher
+from swarmslam.runtime.warm_up import pose_after, room_world, scan_at
 
 ANGLES = np.deg2rad(np.arange(-180, 180, 1.0))
 
@@ -60,8 +60,8 @@ NRT_PROBE = textwrap.dedent(
     from numba.core.runtime import rtsys
     sys.path.insert(0, {tests!r})
     from test_allocation import scans
-    from runtime.optimizers import SwarmConfig
-    from runtime.scan_matcher import N_OUT, MatcherConfig, ScanMatcher
+    from swarmslam.runtime.optimizers import SwarmConfig
+    from swarmslam.runtime.scan_matcher import N_OUT, MatcherConfig, ScanMatcher
 
     ref, cur = scans()
     out = np.zeros(N_OUT)

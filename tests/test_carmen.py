@@ -4,15 +4,15 @@ import math
 import numpy as np
 import pytest
 
-from runtime.scan import PointScan
-from scripts.carmen import (
+from swarmslam.runtime.scan import PointScan
+from swarmslam.carmen import (
     CarmenFormatError,
     flaser_no_return,
     odometry_at_scans,
     read_carmen,
     regular_stream,
 )
-from scripts.replay import robot_frame_scan
+from swarmslam.replay import robot_frame_scan
 
 FLASER = "FLASER 4 1.0 2.0 50.0 0.5 0.1 0.2 0.3 0.1 0.2 0.3 {t} host {t}\n"
 ODOM = "ODOM 1.0 2.0 0.5 0.0 0.0 0.0 {t} host {t}\n"

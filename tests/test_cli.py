@@ -6,10 +6,10 @@ import json
 import numpy as np
 import pytest
 
-from runtime.warm_up import loop_path, room_world, scan_at
-from scripts.carmen import flaser_angles
-from scripts.cli import main
-from scripts.tum import read_tum
+from swarmslam.runtime.warm_up import loop_path, room_world, scan_at
+from swarmslam.carmen import flaser_angles
+from swarmslam.cli import main
+from swarmslam.tum import read_tum
 
 
 def write_keyframe_log(path, steps=8, seed=0):
@@ -64,7 +64,7 @@ def test_replay_writes_map_trajectory_graph_and_metrics(tmp_path, capsys):
     log = tmp_path / "run.clf.gz"
     poses = write_keyframe_log(log, steps=12)
     rel = tmp_path / "run.relations"
-    from runtime.pose import between
+    from swarmslam.runtime.pose import between
 
     lines = []
     for k in range(len(poses) - 1):
@@ -154,7 +154,7 @@ def test_simlog_then_replay_scores_against_the_simulators_truth(tmp_path, capsys
 
 
 def test_bench_generalization_reports_every_figure_and_the_floor(tmp_path, capsys):
-    from scripts.bench.generalization import Case, bench_generalization
+    from swarmslam.bench.generalization import Case, bench_generalization
 
     case = Case("hall", "rplidar-a1", 4.0, "good", seed=2, seconds=150)
     r = bench_generalization((case,), tmp_path / "gen.json")

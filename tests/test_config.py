@@ -5,8 +5,8 @@ import math
 
 import pytest
 
-from hardware.models import MODELS
-from runtime.config import (
+from swarmslam.hardware.models import MODELS
+from swarmslam.runtime.config import (
     OPTIMIZERS,
     PRESETS,
     RPLIDAR_MODELS,
@@ -22,9 +22,9 @@ from runtime.config import (
     to_dict,
     to_toml,
 )
-from runtime.objectives import KERNELS
-from runtime.optimizers import ABC, FA, PSO
-from scripts.cli import main
+from swarmslam.runtime.objectives import KERNELS
+from swarmslam.runtime.optimizers import ABC, FA, PSO
+from swarmslam.cli import main
 from swarmslam_sim.lidar import PRESETS as SIM_LIDARS
 
 

@@ -3,7 +3,7 @@
 import numpy as np
 from scipy.spatial import cKDTree
 
-from runtime.distance_field import N_META, NX, NY, build_distance_field, field_lookup
+from swarmslam.runtime.distance_field import N_META, NX, NY, build_distance_field, field_lookup
 
 
 def build(points, res=0.05, radius=0.5, gap=0.0, cells=512, inv_c2=0.0, bend=0.0,

@@ -8,16 +8,16 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from runtime.config import SlamConfig, override
-from runtime.degeneracy import Degeneracy
-from runtime.graph_optimizer import GaussNewton
-from runtime.loop_closure import visibility
-from runtime.pose import between, compose
-from runtime.pose_graph import LOOP
-from runtime.scan import PointScan
-from runtime.scan_matcher import ScanMatcher
-from runtime.slam import GraphSlam
-from scripts.bench.generalization import (
+from swarmslam.runtime.config import SlamConfig, override
+from swarmslam.runtime.degeneracy import Degeneracy
+from swarmslam.runtime.graph_optimizer import GaussNewton
+from swarmslam.runtime.loop_closure import visibility
+from swarmslam.runtime.pose import between, compose
+from swarmslam.runtime.pose_graph import LOOP
+from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.scan_matcher import ScanMatcher
+from swarmslam.runtime.slam import GraphSlam
+from swarmslam.bench.generalization import (
     CASES,
     TruthOracle,
     loop_scores,
@@ -25,9 +25,9 @@ from scripts.bench.generalization import (
     rigid_ate,
     select,
 )
-from scripts.carmen import read_carmen
-from scripts.relations import read_relations
-from scripts.simlog import log_text, sample_relations, write_simlog
+from swarmslam.carmen import read_carmen
+from swarmslam.relations import read_relations
+from swarmslam.simlog import log_text, sample_relations, write_simlog
 from survey_slam import slam_over
 from swarmslam_sim.survey import Site, run_survey, site
 
@@ -168,7 +168,7 @@ def test_the_floor_holds_a_corridors_axis_at_the_truth_not_at_odometry():
 
 
 def test_loop_scores_count_a_closure_correct_only_near_the_truth():
-    from runtime.pose_graph import PoseGraph
+    from swarmslam.runtime.pose_graph import PoseGraph
 
     truth = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0.5, 0.1, 0.05]], float)
     g = PoseGraph(4, 4)

@@ -14,14 +14,14 @@ import time
 import numpy as np
 import pytest
 
-from runtime.config import SlamConfig
-from runtime.fixed_rate import SlamRuntime
-from runtime.session import SessionError, read_session, write_session
-from runtime.text_records import DataFormatError
-from runtime.warm_up import loop_path, room_world, scan_at
-from scripts.carmen import flaser_angles, read_carmen
-from scripts.cli import main
-from scripts.outputs import clean_stale, output_set
+from swarmslam.runtime.config import SlamConfig
+from swarmslam.runtime.fixed_rate import SlamRuntime
+from swarmslam.runtime.session import SessionError, read_session, write_session
+from swarmslam.runtime.text_records import DataFormatError
+from swarmslam.runtime.warm_up import loop_path, room_world, scan_at
+from swarmslam.carmen import flaser_angles, read_carmen
+from swarmslam.cli import main
+from swarmslam.outputs import clean_stale, output_set
 
 
 def strict_json(path):
@@ -159,13 +159,13 @@ def test_a_binary_file_is_refused_with_its_name(tmp_path, capsys, kind):
         with pytest.raises(DataFormatError, match="not utf-8 text"):
             load_world(blob)
     else:
-        from scripts.g2o import read_g2o
+        from swarmslam.g2o import read_g2o
         with pytest.raises(DataFormatError, match="not utf-8 text"):
             read_g2o(blob)
 
 
 def test_a_fractional_g2o_vertex_id_is_refused(tmp_path):
-    from scripts.g2o import G2oFormatError, read_g2o
+    from swarmslam.g2o import G2oFormatError, read_g2o
     g2o = tmp_path / "frac.g2o"
     g2o.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1.5 1 0 0\nEDGE_SE2 0 1.5 1 0 0 1 0 0 1 0 1\n")
     with pytest.raises(G2oFormatError, match="frac.g2o:2: id: vertex ids are integers"):
@@ -229,7 +229,7 @@ def test_a_session_with_a_valid_checksum_but_wrong_content_is_refused(small_sess
 
 
 def test_resuming_with_another_scanner_resizes_and_says_so(small_session):
-    from scripts.live import slam_config_for
+    from swarmslam.live import slam_config_for
     s2 = slam_config_for("s2").sensor
     runtime = SlamRuntime.resume(small_session, sensor=s2)
     assert runtime.config.sensor.max_points >= s2.max_points
@@ -332,7 +332,7 @@ def test_a_world_that_cannot_be_explored_is_refused(tmp_path, change, message):
     import gymnasium as gym
 
     import swarmslam_sim  # noqa: F401
-    text = (resources.files("worlds") / "office.world").read_text()
+    text = (resources.files("swarmslam.worlds") / "office.world").read_text()
     world = tmp_path / "bad.world"
     world.write_text(change(text))
     with pytest.raises(ValueError, match=message):
@@ -345,7 +345,7 @@ def test_a_port_failing_in_termios_is_a_lidar_error(monkeypatch):
 
     import serial
 
-    from hardware import driver
+    from swarmslam.hardware import driver
 
     class Vanishing:
         def __init__(self, *args, **kwargs):
@@ -385,7 +385,7 @@ def test_count_and_duration_arguments_are_checked_before_any_work(argv, capsys):
 # ---------------------------------------------------------------- live runs stopped hard
 def _emulator(tmp_path):
     """``swarmslam emulate`` on ``tmp_path/lidar``, once it serves."""
-    emu = subprocess.Popen([sys.executable, "-m", "scripts.cli", "emulate", "--model", "a1",
+    emu = subprocess.Popen([sys.executable, "-m", "swarmslam.cli", "emulate", "--model", "a1",
                             "--link", str(tmp_path / "lidar")], stdout=subprocess.PIPE,
                            text=True)
     assert "virtual RPLidar" in emu.stdout.readline()
@@ -396,7 +396,7 @@ def _mapping(tmp_path, out):
     """``swarmslam lidar`` on the emulator, autosaving every 3 s, once mapping has begun."""
     config = tmp_path / "fast-autosave.toml"
     config.write_text("[runtime]\nautosave_seconds = 3.0\n")
-    live = subprocess.Popen([sys.executable, "-m", "scripts.cli", "lidar", "--port",
+    live = subprocess.Popen([sys.executable, "-m", "swarmslam.cli", "lidar", "--port",
                              str(tmp_path / "lidar"), "--model", "a1", "--out", str(out),
                              "--config", str(config)], stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)

@@ -12,10 +12,10 @@ import time
 import numpy as np
 import pytest
 
-from hardware.emulator import VirtualRPLidar
-from hardware.models import model as get_model
-from hardware.sources import FunctionSource
-from hardware.stream import NodeStream, find_descriptor, stream_for
+from swarmslam.hardware.emulator import VirtualRPLidar
+from swarmslam.hardware.models import model as get_model
+from swarmslam.hardware.sources import FunctionSource
+from swarmslam.hardware.stream import NodeStream, find_descriptor, stream_for
 
 
 class Sink:
@@ -83,7 +83,7 @@ def _slamtec_scans(tmp_path, model, typical):
     sdk = pytest.importorskip("pyrplidarsdk", reason="optional test dependency pyrplidarsdk "
                                                      "(pip install -e '.[test]') is not installed")
     link, record = tmp_path / "lidar", tmp_path / "sent.bin"
-    command = [sys.executable, "-m", "scripts.cli", "emulate", "--model", model, "--link",
+    command = [sys.executable, "-m", "swarmslam.cli", "emulate", "--model", model, "--link",
                str(link), "--record", str(record)] + (["--typical", typical] if typical else [])
     emulator = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
     scans = []

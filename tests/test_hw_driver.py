@@ -7,10 +7,10 @@ import time
 import numpy as np
 import pytest
 
-from hardware import protocol as p
-from hardware.driver import LidarError, RPLidar
-from hardware.emulator import Faults, VirtualRPLidar
-from hardware.sources import FunctionSource
+from swarmslam.hardware import protocol as p
+from swarmslam.hardware.driver import LidarError, RPLidar
+from swarmslam.hardware.emulator import Faults, VirtualRPLidar
+from swarmslam.hardware.sources import FunctionSource
 
 
 def room(angles_deg):
@@ -189,7 +189,7 @@ def test_faults_parse_and_refuse_unknown_ones():
 
 def test_emulator_replays_a_carmen_log(tmp_path):
     """Each rotation shows the next laser record; beams outside its field of view are empty."""
-    from scripts.emulator_sources import CarmenSource
+    from swarmslam.emulator_sources import CarmenSource
 
     ranges = " ".join(f"{1.0 + 0.01 * k:.2f}" for k in range(181))  # 181 beams over 180°
     log = tmp_path / "tiny.log"
@@ -234,7 +234,7 @@ def test_a_failing_consumer_does_not_stop_the_stream(emulator_factory):
 
 @pytest.mark.parametrize("model", ["a1", "a2", "a3", "s1", "s2", "c1"])
 def test_the_driver_reads_the_scan_modes_and_starts_the_typical_one(emulator_factory, model):
-    from hardware.models import model as get_model
+    from swarmslam.hardware.models import model as get_model
 
     table = get_model(model)
     emu = emulator_factory(model)

@@ -8,11 +8,11 @@ import sys
 
 import numpy as np
 
-from hardware.emulator import VirtualRPLidar
-from runtime.pose import between
-from scripts.cli import main
-from scripts.emulator_sources import WorldSource
-from scripts.tum import read_tum
+from swarmslam.hardware.emulator import VirtualRPLidar
+from swarmslam.runtime.pose import between
+from swarmslam.cli import main
+from swarmslam.emulator_sources import WorldSource
+from swarmslam.tum import read_tum
 
 
 def test_live_slam_from_the_emulator_tracks_the_true_pose(tmp_path, capsys):
@@ -46,13 +46,13 @@ def test_live_slam_from_the_emulator_tracks_the_true_pose(tmp_path, capsys):
 
 def test_emulate_command_prints_the_port_and_serves_it(tmp_path):
     link = tmp_path / "lidar"
-    proc = subprocess.Popen([sys.executable, "-m", "scripts.cli", "emulate", "--model", "a2",
+    proc = subprocess.Popen([sys.executable, "-m", "swarmslam.cli", "emulate", "--model", "a2",
                              "--link", str(link), "--faults", "garbage=0.01"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         line = proc.stdout.readline()
         assert "virtual RPLidar A2" in line and str(link) in line
-        from hardware.driver import RPLidar
+        from swarmslam.hardware.driver import RPLidar
 
         with RPLidar(str(link), "a2") as lidar:
             assert lidar.get_info().major_model == 2

@@ -6,8 +6,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hardware import protocol as p
-from hardware.stream import CapsuleStream, NodeStream, StreamStats, find_descriptor
+from swarmslam.hardware import protocol as p
+from swarmslam.hardware.stream import CapsuleStream, NodeStream, StreamStats, find_descriptor
 
 
 class Sink:
@@ -280,7 +280,7 @@ def test_ultra_dense_and_hq_capsules_round_trip_and_refuse_damage():
 
 
 def test_an_hq_stream_resynchronises_after_garbage_and_damage():
-    from hardware.stream import HqStream
+    from swarmslam.hardware.stream import HqStream
 
     nodes = [(k * 170, 4000 + k, 188, k == 0) for k in range(p.HQ_NODES)]
     good = p.encode_hq_capsule(nodes)

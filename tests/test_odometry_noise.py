@@ -7,9 +7,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from runtime.config import SlamConfig, override
-from runtime.odometry_noise import OdometryNoise
-from runtime.pose import compose
+from swarmslam.runtime.config import SlamConfig, override
+from swarmslam.runtime.odometry_noise import OdometryNoise
+from swarmslam.runtime.pose import compose
 from survey_slam import node_steps, slam_over
 from swarmslam_sim.survey import SCANNERS, OdometryModel, Site, run_survey, site
 

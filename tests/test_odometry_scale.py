@@ -4,9 +4,9 @@ not (runtime/odometry_scale.py, docs/method.md §6.1)."""
 import numpy as np
 import pytest
 
-from runtime.config import SlamConfig, override
-from runtime.odometry_scale import OdometryScale
-from runtime.session import read_session, write_session
+from swarmslam.runtime.config import SlamConfig, override
+from swarmslam.runtime.odometry_scale import OdometryScale
+from swarmslam.runtime.session import read_session, write_session
 from survey_slam import node_steps, slam_over
 from swarmslam_sim.survey import OdometryModel, Site, run_survey, site
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from runtime.optimizers import SwarmConfig, SwarmOptimizer
+from swarmslam.runtime.optimizers import SwarmConfig, SwarmOptimizer
 
 OPTIMIZERS = ["pso", "abc", "fa"]
 

@@ -6,9 +6,9 @@ import zlib
 import numpy as np
 import pytest
 
-from runtime import writers
-from scripts.png import encode_png
-from scripts.tum import read_tum, write_tum
+from swarmslam.runtime import writers
+from swarmslam.png import encode_png
+from swarmslam.tum import read_tum, write_tum
 from swarmslam_sim.canvas import Canvas
 
 

@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from runtime.pose import (
+from swarmslam.runtime.pose import (
     between,
     between_nb,
     compose,

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from runtime.graph_optimizer import GaussNewton
-from runtime.pose import between, compose
-from runtime.pose_graph import LOOP, CapacityError, PoseGraph, information_from_sigma
-from scripts.g2o import G2oFormatError, read_g2o, write_g2o
+from swarmslam.runtime.graph_optimizer import GaussNewton
+from swarmslam.runtime.pose import between, compose
+from swarmslam.runtime.pose_graph import LOOP, CapacityError, PoseGraph, information_from_sigma
+from swarmslam.g2o import G2oFormatError, read_g2o, write_g2o
 
 
 def square_loop(n_side=10, step=0.5):

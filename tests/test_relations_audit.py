@@ -7,13 +7,13 @@ import json
 import numpy as np
 import pytest
 
-import scripts.relations_audit as relations_audit
-from runtime.pose import between, compose
-from runtime.warm_up import loop_path, room_world, scan_at
-from scripts.carmen import flaser_angles
-from scripts.cli import main
-from scripts.relations import relations_text
-from scripts.tum import write_tum
+import swarmslam.relations_audit as relations_audit
+from swarmslam.runtime.pose import between, compose
+from swarmslam.runtime.warm_up import loop_path, room_world, scan_at
+from swarmslam.carmen import flaser_angles
+from swarmslam.cli import main
+from swarmslam.relations import relations_text
+from swarmslam.tum import write_tum
 
 
 def write_room_log(path, steps=12, seed=1):

@@ -5,11 +5,11 @@ import doctest
 import numpy as np
 import pytest
 
-import scripts.relations_clock as relations_clock
-from runtime.pose import between
-from scripts.relations import Relations
-from scripts.metrics import nearest_stamps
-from scripts.relations_clock import heading_slope, reference_clock, turn_rates
+import swarmslam.relations_clock as relations_clock
+from swarmslam.runtime.pose import between
+from swarmslam.relations import Relations
+from swarmslam.metrics import nearest_stamps
+from swarmslam.relations_clock import heading_slope, reference_clock, turn_rates
 from swarmslam_sim.survey import OdometryModel, drive, integrate_odometry, site
 
 LATENCY = 0.04  # s

@@ -1,4 +1,4 @@
-"""Global relocalization (runtime.place_search, runtime.relocalization): the branch-and-bound
+"""Global relocalization (swarmslam.runtime.place_search, swarmslam.runtime.relocalization): the branch-and-bound
 search is exact, a kidnapped robot is found with no prior, and a symmetric world is called
 ambiguous rather than answered wrongly."""
 
@@ -8,9 +8,9 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from runtime.config import SlamConfig, override
-from runtime.node_scans import NodeScans
-from runtime.place_search import (
+from swarmslam.runtime.config import SlamConfig, override
+from swarmslam.runtime.node_scans import NodeScans
+from swarmslam.runtime.place_search import (
     HIT_MAX,
     SEARCH_STATE,
     UNLIMITED,
@@ -23,10 +23,10 @@ from runtime.place_search import (
     rotate_query,
     select_query,
 )
-from runtime.pose import between
-from runtime.relocalization import Ambiguous, Located, Relocalizer
-from runtime.scan import PointScan
-from runtime.warm_up import loop_path, room_world, scan_at
+from swarmslam.runtime.pose import between
+from swarmslam.runtime.relocalization import Ambiguous, Located, Relocalizer
+from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.warm_up import loop_path, room_world, scan_at
 
 ANGLES = np.linspace(-np.pi, np.pi, 360, endpoint=False)
 # the test worlds are small enough for the exact search: this searches them coarse to fine
@@ -300,8 +300,8 @@ def test_place_map_scores_the_true_pose_near_one(room):
 
 
 def test_bench_localize_maps_again_when_the_mapping_defaults_changed(tmp_path):
-    from scripts.bench.localize import MADE_BY, mapping_session
-    from scripts.simlog import write_simlog
+    from swarmslam.bench.localize import MADE_BY, mapping_session
+    from swarmslam.simlog import write_simlog
 
     log = tmp_path / "hall.clf"
     write_simlog(log, "hall", seed=2, lidar="rplidar-a1", rate_hz=4.0, seconds=15)
@@ -323,8 +323,8 @@ def test_bench_localize_maps_again_when_the_mapping_defaults_changed(tmp_path):
 def test_bench_localize_maps_a_log_and_scores_its_queries(tmp_path):
     """The benchmark's pipeline on a short simulated survey: the mapping replay leaves a
     session, the queries are judged against its trajectory, every figure is reported."""
-    from scripts.bench.localize import bench_log, judge, mapping_session
-    from scripts.simlog import write_simlog
+    from swarmslam.bench.localize import bench_log, judge, mapping_session
+    from swarmslam.simlog import write_simlog
 
     log = tmp_path / "hall.clf"
     write_simlog(log, "hall", seed=2, lidar="rplidar-a1", rate_hz=4.0, seconds=60)

@@ -1,11 +1,11 @@
-"""RLlib on SwarmSlam-v0 (scripts.train_rllib): one PPO iteration with 2 env runners on a
+"""RLlib on SwarmSlam-v0 (swarmslam.train_rllib): one PPO iteration with 2 env runners on a
 local Ray, and a checkpoint that restores."""
 
 import ray
 from ray.rllib.algorithms.algorithm import Algorithm  # the 'rllib' extra, in the test one
 
-from scripts.cli import main
-from scripts.train_rllib import train_ppo
+from swarmslam.cli import main
+from swarmslam.train_rllib import train_ppo
 
 
 def test_one_ppo_iteration_with_two_env_runners(tmp_path):

@@ -13,7 +13,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from runtime.config import (
+from swarmslam.runtime.config import (
     MatcherConfig,
     RuntimeConfig,
     SensorConfig,
@@ -21,12 +21,14 @@ from runtime.config import (
     SwarmConfig,
     override,
 )
-from runtime.fixed_rate import SlamRuntime
-from runtime.pose import between
-from runtime.scan import PointScan
-from runtime.session import SessionError, read_session, write_session
-from runtime.slam import GraphSlam
-from runtime.warm_up import LoopDrive
+from swarmslam.runtime.fixed_rate import SlamRuntime
+from swarmslam.runtime.pose import between
+from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.session import SessionError, read_session, write_session
+from swarmslam.runtime.slam import GraphSlam
+from swarmslam.runtime.warm_up import LoopDrive
+
+from source_layout import copy_installed_layout
 
 # A small swarm budget keeps the long runs quick; the code paths are the same at any budget.
 # LoopDrive's scanner reaches 12 m ("no return" reads 12).
@@ -196,7 +198,7 @@ RUN_AND_DIE = textwrap.dedent(
     import os, signal, sys
     sys.path.insert(0, {tests!r})
     from test_runtime import LOCKSTEP, QUICK, feed, recorded_drive
-    from runtime.fixed_rate import SlamRuntime
+    from swarmslam.runtime.fixed_rate import SlamRuntime
     angles, records = recorded_drive({steps})
     runtime = SlamRuntime(LOCKSTEP, seed=7)
     feed(runtime, angles, records[:{cut}])
@@ -309,10 +311,10 @@ SOAK_PROBE = textwrap.dedent(
     import numpy as np
     sys.path.insert(0, {tests!r})
     from test_runtime import QUICK, recorded_drive, with_runtime
-    from runtime.config import override
-    from runtime.fixed_rate import SlamRuntime
-    from runtime.pose import between, compose
-    from runtime.scan import PointScan
+    from swarmslam.runtime.config import override
+    from swarmslam.runtime.fixed_rate import SlamRuntime
+    from swarmslam.runtime.pose import between, compose
+    from swarmslam.runtime.scan import PointScan
 
     angles, records = recorded_drive(80)  # one lap, driven again and again
     config = override(QUICK, {{"capacity.max_nodes": 500, "capacity.max_edges": 2500,
@@ -367,9 +369,9 @@ GROWTH_PROBE = textwrap.dedent(
     import gc, json, sys, tracemalloc
     sys.path.insert(0, {tests!r})
     from test_runtime import LOCKSTEP, recorded_drive
-    from runtime.config import override
-    from runtime.fixed_rate import SlamRuntime
-    from runtime.scan import PointScan
+    from swarmslam.runtime.config import override
+    from swarmslam.runtime.fixed_rate import SlamRuntime
+    from swarmslam.runtime.scan import PointScan
 
     angles, records = recorded_drive(80)
     runtime = SlamRuntime(override(LOCKSTEP, {{"capacity.max_nodes": 600,
@@ -454,17 +456,12 @@ def test_the_same_seed_gives_the_same_run_compiled_or_loaded_from_the_cache(tmp_
     beside them), then the same replay again (every kernel loaded from that cache): the
     trajectories must match bit for bit. With reassociation allowed in the objective's sum
     they did not (docs/runtime.md §6)."""
-    import shutil
-
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    copy = tmp_path / "src"
-    for package in ("runtime", "scripts", "swarmslam_sim", "hardware", "worlds"):
-        shutil.copytree(os.path.join(root, package), copy / package,
-                        ignore=shutil.ignore_patterns("__pycache__"))
+    copy = copy_installed_layout(tmp_path / "src")
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env["PYTHONPATH"] = str(copy)  # ahead of the installed package
 
     def cli(*args):
-        done = subprocess.run([sys.executable, "-m", "scripts.cli", *args], cwd=copy, env=env,
+        done = subprocess.run([sys.executable, "-m", "swarmslam.cli", *args], cwd=tmp_path, env=env,
                               capture_output=True, text=True, timeout=900)
         assert done.returncode == 0, done.stderr
 

@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from runtime.scan import PointScan
+from swarmslam.runtime.scan import PointScan
 
 
 def test_invalid_readings_dropped():

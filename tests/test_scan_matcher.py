@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
-from runtime.config import SwarmConfig
-from runtime.distance_field import R2, field_lookup
-from runtime.objectives import KERNELS, scan_to_scan_error
-from runtime.pose import between
-from runtime.scan import PointScan
-from runtime.scan_matcher import MatcherConfig, ScanMatcher
-from runtime.warm_up import pose_after, room_world, scan_at
+from swarmslam.runtime.config import SwarmConfig
+from swarmslam.runtime.distance_field import R2, field_lookup
+from swarmslam.runtime.objectives import KERNELS, scan_to_scan_error
+from swarmslam.runtime.pose import between
+from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.scan_matcher import MatcherConfig, ScanMatcher
+from swarmslam.runtime.warm_up import pose_after, room_world, scan_at
 
 ANGLES = np.deg2rad(np.arange(-180, 180, 1.0))  # a 360° RPLidar-like scanner
 START = np.array([3.0, 3.0, 0.3])

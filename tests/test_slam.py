@@ -6,15 +6,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from runtime.config import SlamConfig, override
-from runtime.pose import between, compose, wrap_angle
-from runtime.pose_graph import LOOP
-from runtime.scan import PointScan
-from runtime.slam import GraphSlam
-from runtime.warm_up import loop_path, room_world, scan_at
-from scripts.map_io import read_pgm, write_map
-from scripts.metrics import kummerle
-from scripts.relations import Relations, RelationsFormatError, read_relations
+from swarmslam.runtime.config import SlamConfig, override
+from swarmslam.runtime.pose import between, compose, wrap_angle
+from swarmslam.runtime.pose_graph import LOOP
+from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.slam import GraphSlam
+from swarmslam.runtime.warm_up import loop_path, room_world, scan_at
+from swarmslam.map_io import read_pgm, write_map
+from swarmslam.metrics import kummerle
+from swarmslam.relations import Relations, RelationsFormatError, read_relations
 
 ANGLES = np.deg2rad(np.arange(-180, 180, 1.0))
 
@@ -141,7 +141,7 @@ DATA = Path(os.environ.get("SWARMSLAM_DATASETS", Path(__file__).parents[1] / "..
 @pytest.mark.skipif(not (DATA / "radish" / "intel.clf.gz").exists(),
                     reason=f"integration data absent: {DATA / 'radish' / 'intel.clf.gz'}")
 def test_intel_first_scans_stay_bounded():
-    from scripts.replay import replay
+    from swarmslam.replay import replay
 
     m = replay(DATA / "radish" / "intel.clf.gz", DATA / "radish" / "intel.relations", limit=400)
     assert m["relations_used"] >= 20

@@ -1,28 +1,47 @@
 """The layering the project promises (README, "Layout"), read from the source itself:
 ``scripts`` → (``swarmslam_sim``, ``hardware``) → ``runtime``; ``runtime`` deploys alone on
-numpy/scipy/numba; no import cycle, and none hidden by an import inside a function."""
+numpy/scipy/numba; no import cycle, and none hidden by an import inside a function. Installed,
+the folders are one namespace (``swarmslam.runtime``, ``swarmslam.hardware``, ``swarmslam``
+for ``scripts``...; tests/source_layout.py), and the sources import each other by those names
+only."""
 
 import ast
 import sys
+import zipfile
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ("runtime", "hardware", "swarmslam_sim", "scripts", "worlds")
-# What each package may import from the project.
+from source_layout import ROOT, package_dirs
+
+FOLDERS = ("runtime", "hardware", "swarmslam_sim", "scripts", "worlds")
+# What each folder may import from the project.
 ALLOWED = {
     "runtime": {"runtime"},
     "hardware": {"hardware", "runtime"},
     "swarmslam_sim": {"swarmslam_sim", "runtime", "worlds"},
     "worlds": set(),
-    "scripts": set(PACKAGES),
+    "scripts": set(FOLDERS),
 }
 RUNTIME_THIRD_PARTY = {"numpy", "scipy", "numba", "tomli"}
+# The folders' installed import names, longest first (``swarmslam`` holds ``scripts``).
+INSTALLED = sorted(((name, folder.split("/")[0]) for name, folder in package_dirs().items()),
+                   key=lambda item: -len(item[0]))
+PACKAGE_OF = {folder: name for name, folder in package_dirs().items() if "/" not in folder}
+
+
+def folder_of(module: str) -> str | None:
+    """The repository folder an installed module name lives in (None: not the project's)."""
+    for name, folder in INSTALLED:
+        if module == name or module.startswith(name + "."):
+            return folder
+    return None
 
 
 def module_name(path: Path) -> str:
-    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    """A source file's installed module name."""
+    folder = path.relative_to(ROOT).parts[0]
+    parts = [*PACKAGE_OF[folder].split("."), *path.relative_to(ROOT / folder).with_suffix("").parts]
     if parts[-1] == "__init__":
         parts.pop()
     return ".".join(parts)
@@ -40,7 +59,7 @@ def imports(path: Path):
                 found.extend((a.name, child.lineno, in_function) for a in child.names)
             elif isinstance(child, ast.ImportFrom) and child.level == 0 and child.module:
                 found.append((child.module, child.lineno, in_function))
-                # ``from runtime import session``: the submodule is what is imported
+                # ``from swarmslam.runtime import session``: the submodule is what is imported
                 found.extend((f"{child.module}.{a.name}", child.lineno, in_function)
                              for a in child.names)
             visit(child, nested)
@@ -50,12 +69,12 @@ def imports(path: Path):
 
 
 def project_graph():
-    files = {module_name(p): p for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py")}
+    files = {module_name(p): p for folder in FOLDERS for p in (ROOT / folder).rglob("*.py")}
     edges = {}
     for name, path in files.items():
         targets = set()
         for target, line, in_function in imports(path):
-            if target.split(".")[0] in PACKAGES and target in files and target != name:
+            if folder_of(target) and target in files and target != name:
                 targets.add((target, line, in_function))
         edges[name] = targets
     return files, edges
@@ -65,15 +84,16 @@ FILES, EDGES = project_graph()
 
 
 def test_the_graph_covers_the_project():
-    assert {"runtime.slam", "runtime.front_end", "runtime.back_end", "runtime.config",
-            "hardware.driver", "swarmslam_sim.env", "scripts.cli"} <= set(FILES)
+    assert {"swarmslam.runtime.slam", "swarmslam.runtime.front_end", "swarmslam.runtime.back_end",
+            "swarmslam.runtime.config", "swarmslam.hardware.driver", "swarmslam_sim.env",
+            "swarmslam.cli", "swarmslam.bench.slam", "swarmslam.worlds"} <= set(FILES)
 
 
-@pytest.mark.parametrize("package", PACKAGES)
-def test_each_package_imports_only_what_it_may(package):
+@pytest.mark.parametrize("folder", FOLDERS)
+def test_each_folder_imports_only_what_it_may(folder):
     wrong = [f"{src}:{line} imports {dst}" for src, targets in EDGES.items()
-             if src.split(".")[0] == package
-             for dst, line, _ in targets if dst.split(".")[0] not in ALLOWED[package]]
+             if folder_of(src) == folder
+             for dst, line, _ in targets if folder_of(dst) not in ALLOWED[folder]]
     assert not wrong, "\n".join(wrong)
 
 
@@ -81,11 +101,12 @@ def test_runtime_needs_numpy_scipy_numba_only():
     stdlib = set(sys.stdlib_module_names)
     wrong = []
     for name, path in FILES.items():
-        if not name.startswith("runtime"):
+        if folder_of(name) != "runtime":
             continue
         for target, line, _ in imports(path):
             top = target.split(".")[0]
-            if top not in stdlib and top not in RUNTIME_THIRD_PARTY and top != "runtime":
+            if top not in stdlib and top not in RUNTIME_THIRD_PARTY \
+                    and folder_of(target) != "runtime":
                 wrong.append(f"{name}:{line} imports {target}")
     assert not wrong, "\n".join(wrong)
 
@@ -111,12 +132,12 @@ def test_no_import_cycle_even_through_imports_inside_functions():
     assert not cycle, " -> ".join(cycle)
 
 
-@pytest.mark.parametrize("package", ["runtime", "hardware", "swarmslam_sim"])
-def test_libraries_import_the_project_at_module_level_only(package):
-    """An import inside a function is where a cycle hides; the command line (scripts.cli)
+@pytest.mark.parametrize("folder", ["runtime", "hardware", "swarmslam_sim"])
+def test_libraries_import_the_project_at_module_level_only(folder):
+    """An import inside a function is where a cycle hides; the command line (swarmslam.cli)
     may import lazily to start fast, the libraries may not."""
     late = [f"{src}:{line} imports {dst} inside a function"
-            for src, targets in EDGES.items() if src.split(".")[0] == package
+            for src, targets in EDGES.items() if folder_of(src) == folder
             for dst, line, in_function in targets if in_function]
     assert not late, "\n".join(late)
 
@@ -151,7 +172,7 @@ def test_every_citation_of_the_docs_points_at_a_section_that_exists():
 def test_the_configuration_page_lists_every_field():
     import dataclasses
 
-    from runtime.config import SlamConfig
+    from swarmslam.runtime.config import SlamConfig
 
     page = (ROOT / "docs" / "configuration.md").read_text(encoding="utf-8")
 
@@ -170,3 +191,44 @@ def test_the_configuration_page_lists_every_field():
         if len(part) < 2 or f"| `{field}` |" not in part[1].split("\n### ", 1)[0]:
             absent.append(f"{table}.{field}")
     assert not absent, absent
+
+
+def test_the_sources_import_the_project_by_its_installed_names_only():
+    """``import runtime`` or ``from scripts...`` would load a second copy of a module beside
+    its ``swarmslam.`` one (or nothing at all, installed)."""
+    wrong = [f"{path.relative_to(ROOT)}:{line} imports {target}"
+             for folder in (*FOLDERS, "tests") for path in (ROOT / folder).rglob("*.py")
+             for target, line, _ in imports(path)
+             if target.split(".")[0] in {"runtime", "hardware", "scripts", "worlds"}]
+    assert not wrong, "\n".join(wrong)
+
+
+def test_the_distribution_installs_only_swarmslam_names(tmp_path):
+    """The wheel ``pip install .`` installs: every top-level name starts with ``swarmslam``
+    (``runtime`` or ``scripts`` would collide with other distributions), and the package
+    data (worlds, udev rules) is inside."""
+    import shutil
+    import subprocess
+
+    source = tmp_path / "source"
+    source.mkdir()
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy2(ROOT / name, source / name)
+    for folder in FOLDERS:
+        shutil.copytree(ROOT / folder, source / folder,
+                        ignore=shutil.ignore_patterns("__pycache__"))
+    done = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps",
+                           "--no-build-isolation", "-w", str(tmp_path / "wheel"), str(source)],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    (wheel,) = (tmp_path / "wheel").glob("swarmslam-*.whl")
+    names = zipfile.ZipFile(wheel).namelist()
+    top = {n.split("/")[0] for n in names if not n.split("/")[0].endswith(".dist-info")}
+    assert top == {"swarmslam", "swarmslam_sim"}
+    for expected in ("swarmslam/cli.py", "swarmslam/bench/slam.py", "swarmslam/runtime/slam.py",
+                     "swarmslam/runtime/optimizers/pso.py", "swarmslam/hardware/driver.py",
+                     "swarmslam/worlds/office.world", "swarmslam/hardware/99-rplidar.rules",
+                     "swarmslam_sim/env.py"):
+        assert expected in names
+    entry = next(n for n in names if n.endswith("entry_points.txt"))
+    assert "swarmslam = swarmslam.cli:main" in zipfile.ZipFile(wheel).read(entry).decode()

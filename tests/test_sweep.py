@@ -1,4 +1,4 @@
-"""``swarmslam sweep`` (scripts.sweep): a spec's runs give the figures of ``replay`` with the
+"""``swarmslam sweep`` (swarmslam.sweep): a spec's runs give the figures of ``replay`` with the
 same seed, serially and on Ray; a results file lets a killed sweep go on with only the runs
 it lacks; a bad spec is refused naming the file and the field."""
 
@@ -11,10 +11,10 @@ import time
 import pytest
 import ray  # the 'scale' extra, which the test install has
 
-from runtime.config import SlamConfig, override
-from scripts.replay import replay_run
-from scripts.simlog import write_simlog
-from scripts.sweep import SpecError, read_results, read_spec, summarise, sweep
+from swarmslam.runtime.config import SlamConfig, override
+from swarmslam.replay import replay_run
+from swarmslam.simlog import write_simlog
+from swarmslam.sweep import SpecError, read_results, read_spec, summarise, sweep
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +66,7 @@ def test_a_sweep_gives_replays_figures_and_resumes_without_redoing(tiny_log, tmp
 def test_a_killed_sweep_redoes_only_its_unfinished_runs(tiny_log, tmp_path):
     spec_path = write_spec(tmp_path, tiny_log, GRID)
     results = tmp_path / "out" / "results.jsonl"
-    cmd = [sys.executable, "-m", "scripts.cli", "sweep", str(spec_path), "--serial"]
+    cmd = [sys.executable, "-m", "swarmslam.cli", "sweep", str(spec_path), "--serial"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + 300

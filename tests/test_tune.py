@@ -1,15 +1,15 @@
-"""``swarmslam tune`` (scripts.tune): Ray Tune with an Optuna search over configuration
+"""``swarmslam tune`` (swarmslam.tune): Ray Tune with an Optuna search over configuration
 fields, end to end on two tiny simulated logs, writes a configuration ``--config`` loads."""
 
 import json
 
 import pytest
 
-from runtime.config import SlamConfig, load_config
-from scripts.cli import main
-from scripts.simlog import write_simlog
-from scripts.sweep import SpecError
-from scripts.tune import objective, read_tune_spec
+from swarmslam.runtime.config import SlamConfig, load_config
+from swarmslam.cli import main
+from swarmslam.simlog import write_simlog
+from swarmslam.sweep import SpecError
+from swarmslam.tune import objective, read_tune_spec
 
 SEARCH = """
 [search]

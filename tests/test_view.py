@@ -18,17 +18,17 @@ import rerun as rr
 from gymnasium.wrappers import RecordVideo
 from mcap.reader import make_reader
 
-import scripts.rerun_view as rerun_view
-import scripts.run_view as run_view
-from runtime.scan import PointScan
-from runtime.writers import write_bytes_atomic
-from scripts.bench.slam import plot_run
-from scripts.carmen import read_carmen
-from scripts.cli import main
-from scripts.mcap_recording import laser_ranges
-from scripts.plots import bars, latency_histograms
-from scripts.relations import read_relations
-from scripts.replay import replay_run, robot_frame_scan
+import swarmslam.rerun_view as rerun_view
+import swarmslam.run_view as run_view
+from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.writers import write_bytes_atomic
+from swarmslam.bench.slam import plot_run
+from swarmslam.carmen import read_carmen
+from swarmslam.cli import main
+from swarmslam.mcap_recording import laser_ranges
+from swarmslam.plots import bars, latency_histograms
+from swarmslam.relations import read_relations
+from swarmslam.replay import replay_run, robot_frame_scan
 
 
 @pytest.fixture(scope="module")
@@ -226,10 +226,10 @@ def test_laser_ranges_bins_by_angle():
 def test_the_base_install_needs_none_of_the_extras():
     """The CLI, the demo, replay and every benchmark import without rerun, mcap, matplotlib or
     moviepy: they are loaded only when a view, a recording or plots are asked for."""
-    code = ("import sys, scripts.cli, scripts.demo, scripts.replay, scripts.live, "
-            "scripts.bench.slam, scripts.bench.runtime, scripts.bench.localize, "
-            "scripts.bench.matcher, scripts.bench.env, scripts.bench.posegraph, "
-            "scripts.bench.generalization; "
+    code = ("import sys, swarmslam.cli, swarmslam.demo, swarmslam.replay, swarmslam.live, "
+            "swarmslam.bench.slam, swarmslam.bench.runtime, swarmslam.bench.localize, "
+            "swarmslam.bench.matcher, swarmslam.bench.env, swarmslam.bench.posegraph, "
+            "swarmslam.bench.generalization; "
             "print(sorted(m for m in ('rerun', 'mcap', 'matplotlib', 'moviepy') "
             "if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
@@ -241,17 +241,17 @@ def test_a_redraw_is_handed_over_whole_after_its_cells_are_converted_a_few_rows_
     """The painter draws a few node scans per call, then converts a few rows of cells per
     call; the finished map equals the whole grid converted at once (the map file's values,
     the ROS percentages), and a graph that did not change is not redrawn."""
-    from runtime.warm_up import room_world, scan_at
-    from scripts.map_io import trinary_image
-    from scripts.map_painter import MapPainter, occupancy_percent
+    from swarmslam.runtime.warm_up import room_world, scan_at
+    from swarmslam.map_io import trinary_image
+    from swarmslam.map_painter import MapPainter, occupancy_percent
 
     class Graph:  # what the painter reads of a SLAM run
         def __init__(self, poses, nodes):
             self.graph = type("G", (), {"poses": poses, "n_nodes": len(poses)})()
             self.nodes, self.revision = nodes, 0
 
-    from runtime.config import MapConfig
-    from runtime.node_scans import NodeScans
+    from swarmslam.runtime.config import MapConfig
+    from swarmslam.runtime.node_scans import NodeScans
 
     world = room_world(1, size=(16.0, 10.0), boxes=8, walls=2)
     angles = np.linspace(-np.pi, np.pi, 360, endpoint=False)

@@ -1,4 +1,4 @@
-"""The wide loop search (runtime.wide_loop_search): a node returning to mapped ground after a
+"""The wide loop search (swarmslam.runtime.wide_loop_search): a node returning to mapped ground after a
 long drift is placed by the search over the old nodes' map, and refused where a corridor makes
 the place ambiguous."""
 
@@ -8,16 +8,16 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from runtime.config import SlamConfig, override
-from runtime.graph_optimizer import GaussNewton
-from runtime.loop_closure import LoopCloser
-from runtime.node_scans import NodeScans
-from runtime.place_search import pool_pyramid
-from runtime.pose import compose, wrap_angle
-from runtime.pose_graph import LOOP, PoseGraph
-from runtime.scan import PointScan
-from runtime.warm_up import room_world, scan_at
-from runtime.wide_loop_search import WideLoopSearch, open_window
+from swarmslam.runtime.config import SlamConfig, override
+from swarmslam.runtime.graph_optimizer import GaussNewton
+from swarmslam.runtime.loop_closure import LoopCloser
+from swarmslam.runtime.node_scans import NodeScans
+from swarmslam.runtime.place_search import pool_pyramid
+from swarmslam.runtime.pose import compose, wrap_angle
+from swarmslam.runtime.pose_graph import LOOP, PoseGraph
+from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.warm_up import room_world, scan_at
+from swarmslam.runtime.wide_loop_search import WideLoopSearch, open_window
 
 ANGLES = np.linspace(-np.pi, np.pi, 360, endpoint=False)
 # queries of two node scans (a search's separate second look is two or more nodes back), on

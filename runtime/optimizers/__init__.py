@@ -12,9 +12,9 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from runtime.config import OPTIMIZERS, SwarmConfig
-from runtime.optimizers import bee_colony, firefly, pso
-from runtime.optimizers.workspace import (
+from swarmslam.runtime.config import OPTIMIZERS, SwarmConfig
+from swarmslam.runtime.optimizers import bee_colony, firefly, pso
+from swarmslam.runtime.optimizers.workspace import (
     BEST_VAL,
     DONE,
     EVALUATIONS,
@@ -23,7 +23,7 @@ from runtime.optimizers.workspace import (
     make_workspace,
     reset_run,
 )
-from runtime.rng import seed_state
+from swarmslam.runtime.rng import seed_state
 
 PSO, ABC, FA = (OPTIMIZERS.index(name) for name in ("pso", "abc", "fa"))
 

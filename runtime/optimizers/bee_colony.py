@@ -12,8 +12,8 @@ from __future__ import annotations
 
 from numba import njit
 
-from runtime.optimizers.workspace import PHASE, clip, end_iteration, offer_best
-from runtime.rng import randint, uniform
+from swarmslam.runtime.optimizers.workspace import PHASE, clip, end_iteration, offer_best
+from swarmslam.runtime.rng import randint, uniform
 
 LIMIT = 0
 N_PARAMS = 1

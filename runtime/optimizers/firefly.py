@@ -13,7 +13,7 @@ import math
 
 from numba import njit
 
-from runtime.optimizers.workspace import (
+from swarmslam.runtime.optimizers.workspace import (
     ALPHA,
     PHASE,
     ask_every_member,
@@ -21,7 +21,7 @@ from runtime.optimizers.workspace import (
     end_iteration,
     offer_best,
 )
-from runtime.rng import normal, uniform
+from swarmslam.runtime.rng import normal, uniform
 
 ALPHA0, BETA0, GAMMA, ALPHA_DECAY = 0, 1, 2, 3
 N_PARAMS = 4

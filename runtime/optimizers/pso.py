@@ -8,14 +8,14 @@ from __future__ import annotations
 
 from numba import njit
 
-from runtime.optimizers.workspace import (
+from swarmslam.runtime.optimizers.workspace import (
     PHASE,
     ask_every_member,
     clip,
     end_iteration,
     offer_best,
 )
-from runtime.rng import uniform
+from swarmslam.runtime.rng import uniform
 
 W, C1, C2, V_MAX = 0, 1, 2, 3
 N_PARAMS = 4

@@ -13,8 +13,8 @@ import time
 
 import gymnasium as gym
 
-from runtime.writers import write_json_atomic
-from scripts.plots import bars, require_matplotlib
+from swarmslam.runtime.writers import write_json_atomic
+from swarmslam.plots import bars, require_matplotlib
 
 TARGETS = {"steps_per_s_without_slam": 8000, "steps_per_s_with_slam": 400}
 

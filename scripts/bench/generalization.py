@@ -23,14 +23,14 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.config import SlamConfig, override
-from runtime.pose import between
-from runtime.pose_graph import LOOP
-from runtime.writers import write_json_atomic
-from scripts.plots import bars, require_matplotlib
-from scripts.replay import replay_run
-from scripts.simlog import write_simlog
-from scripts.tum import read_tum
+from swarmslam.runtime.config import SlamConfig, override
+from swarmslam.runtime.pose import between
+from swarmslam.runtime.pose_graph import LOOP
+from swarmslam.runtime.writers import write_json_atomic
+from swarmslam.plots import bars, require_matplotlib
+from swarmslam.replay import replay_run
+from swarmslam.simlog import write_simlog
+from swarmslam.tum import read_tum
 from swarmslam_sim.survey import ODOMETRY, SCANNERS, SITES
 
 CORRECT_LOOP = (0.2, math.radians(2.0))  # m, rad

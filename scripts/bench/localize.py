@@ -2,7 +2,7 @@
 
 Per log: the map of the whole log (a mapping replay, ABC with odometry, seed 0; its session is
 kept in ``maps_dir`` and reused while the defaults it was mapped with are today's; the search
-and tracking always run with today's :data:`runtime.config.SESSION_SECTIONS`), then single
+and tracking always run with today's :data:`swarmslam.runtime.config.SESSION_SECTIONS`), then single
 scans drawn at seeded random times are relocalized with no prior. An answer is a success within
 0.3 m and 5° of the mapping run's optimised pose of that scan, wrong otherwise; "ambiguous" is
 neither. Then the same queries confirmed: localization mode started there with no prior, its
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.config import (
+from swarmslam.runtime.config import (
     SESSION_SECTIONS,
     ConfigError,
     SlamConfig,
@@ -29,18 +29,18 @@ from runtime.config import (
     session_settings,
     to_toml,
 )
-from runtime.fixed_rate import SlamRuntime
-from runtime.localization import TRACKING
-from runtime.pose import between
-from runtime.relocalization import Ambiguous, Located
-from runtime.scan import PointScan
-from runtime.writers import write_json_atomic, write_text_atomic
-from scripts.bench.slam import LOGS
-from scripts.carmen import read_carmen
-from scripts.datasets import require
-from scripts.plots import bars, latency_histograms, require_matplotlib
-from scripts.progress import Progress
-from scripts.replay import replay, robot_frame_scan
+from swarmslam.runtime.fixed_rate import SlamRuntime
+from swarmslam.runtime.localization import TRACKING
+from swarmslam.runtime.pose import between
+from swarmslam.runtime.relocalization import Ambiguous, Located
+from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.writers import write_json_atomic, write_text_atomic
+from swarmslam.bench.slam import LOGS
+from swarmslam.carmen import read_carmen
+from swarmslam.datasets import require
+from swarmslam.plots import bars, latency_histograms, require_matplotlib
+from swarmslam.progress import Progress
+from swarmslam.replay import replay, robot_frame_scan
 
 SUCCESS_DISTANCE = 0.3  # m
 SUCCESS_ANGLE = math.radians(5.0)

@@ -16,16 +16,16 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.pose import between
-from runtime.scan import PointScan
-from runtime.scan_matcher import MatcherConfig, ScanMatcher
-from runtime.writers import write_json_atomic
-from scripts.carmen import read_carmen
-from scripts.datasets import require
-from scripts.icp import icp
-from scripts.metrics import is_failure, pair_errors, relative_errors
-from scripts.plots import matcher_errors, require_matplotlib
-from scripts.progress import Progress
+from swarmslam.runtime.pose import between
+from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.scan_matcher import MatcherConfig, ScanMatcher
+from swarmslam.runtime.writers import write_json_atomic
+from swarmslam.carmen import read_carmen
+from swarmslam.datasets import require
+from swarmslam.icp import icp
+from swarmslam.metrics import is_failure, pair_errors, relative_errors
+from swarmslam.plots import matcher_errors, require_matplotlib
+from swarmslam.progress import Progress
 
 DATASETS = {"intel": "intel-corrected.log.gz", "aces": "aces-corrected.log.gz"}
 EQ24_PAIRS = 50

@@ -9,11 +9,11 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from runtime.graph_optimizer import GaussNewton
-from runtime.writers import write_json_atomic
-from scripts.datasets import require
-from scripts.g2o import read_g2o
-from scripts.plots import bars, require_matplotlib
+from swarmslam.runtime.graph_optimizer import GaussNewton
+from swarmslam.runtime.writers import write_json_atomic
+from swarmslam.datasets import require
+from swarmslam.g2o import read_g2o
+from swarmslam.plots import bars, require_matplotlib
 
 GRAPHS = {
     "INTEL": ("input_INTEL_g2o.g2o", 215.830, 12.0),

@@ -11,7 +11,7 @@ budgeted schedule unless said):
    ticks at 10 Hz on the wall clock, for ``realtime_minutes`` of the log (45 min in all).
 
 ``--soak MINUTES`` instead drives the runtime for that long on simulated scans
-(:class:`runtime.warm_up.LoopDrive`), sampling RSS and traced memory each minute.
+(:class:`swarmslam.runtime.warm_up.LoopDrive`), sampling RSS and traced memory each minute.
 Targets (issue 6): 0 misses, p99 ≤ 20 ms, RSS growth ≤ 1 MB, 0 traced bytes per tick.
 """
 
@@ -26,19 +26,19 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.config import SlamConfig, override
-from runtime.fixed_rate import SlamRuntime
-from runtime.scan import PointScan
-from runtime.warm_up import LoopDrive
-from runtime.writers import write_json_atomic
-from scripts.carmen import read_carmen
-from scripts.datasets import require
-from scripts.metrics import kummerle
-from scripts.plots import latency_histograms, lines_plot, require_matplotlib
-from scripts.progress import Progress
-from scripts.relations import read_relations
-from scripts.replay import replay, robot_frame_scan
-from scripts.run_view import RunWatch, frame_of
+from swarmslam.runtime.config import SlamConfig, override
+from swarmslam.runtime.fixed_rate import SlamRuntime
+from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.warm_up import LoopDrive
+from swarmslam.runtime.writers import write_json_atomic
+from swarmslam.carmen import read_carmen
+from swarmslam.datasets import require
+from swarmslam.metrics import kummerle
+from swarmslam.plots import latency_histograms, lines_plot, require_matplotlib
+from swarmslam.progress import Progress
+from swarmslam.relations import read_relations
+from swarmslam.replay import replay, robot_frame_scan
+from swarmslam.run_view import RunWatch, frame_of
 
 WARM_UP = 1000  # scans before RSS and traced memory are taken as the baseline
 

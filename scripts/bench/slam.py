@@ -9,12 +9,12 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.writers import write_json_atomic
-from scripts.datasets import require
-from scripts.metrics import LOCAL_GAP, relation_errors
-from scripts.plots import require_matplotlib, slam_errors_over_time, slam_summary
-from scripts.relations import read_relations
-from scripts.replay import replay_run
+from swarmslam.runtime.writers import write_json_atomic
+from swarmslam.datasets import require
+from swarmslam.metrics import LOCAL_GAP, relation_errors
+from swarmslam.plots import require_matplotlib, slam_errors_over_time, slam_summary
+from swarmslam.relations import read_relations
+from swarmslam.replay import replay_run
 
 LOGS = {"intel": ("intel.clf.gz", "intel.relations"), "aces": ("aces.clf.gz", "aces.relations"),
         "clinic": ("fr-clinic.clf.gz", "fr-clinic.relations")}

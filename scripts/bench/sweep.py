@@ -10,8 +10,8 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from runtime.writers import write_json_atomic
-from scripts.sweep import KEPT, sweep
+from swarmslam.runtime.writers import write_json_atomic
+from swarmslam.sweep import KEPT, sweep
 
 COMPARED = tuple(k for k in KEPT if k not in ("wall_seconds", "real_time_factor",
                                               "latency_ms_p99"))
