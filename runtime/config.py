@@ -280,6 +280,13 @@ class FrontEndConfig(Section):
         "none: no gate", ge=0)
     odometry_gate_share: tuple[float, float] = _setting(
         (0.2, 0.35), "shares of odometry's step (translation, rotation) added to the gate", ge=0)
+    odometry_gate_fit: float = _setting(
+        0.1, "a match the gate refuses for its heading (or against a stale reading) stands when "
+        "its share of points on the keyframe's surfaces exceeds odometry's prediction's by this "
+        "much: the scans overrule odometry (docs/method.md §6.1); 1: never", ge=0, le=1)
+    window_margin: float = _setting(
+        0.05, "a match within this share of its search box's edge found no optimum inside the "
+        "box: tracking is lost", ge=0, lt=1)
     submap_nodes: int = _setting(
         3, "node scans in the keyframe reference: the newest and those just before it, placed "
         "by the graph (1: the newest alone)", ge=1)

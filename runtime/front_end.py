@@ -54,17 +54,17 @@ class Tracking:
 
 
 def contradicts_odometry(pose, guess, step, config: FrontEndConfig,
-                         heading: bool = True) -> bool:
+                         heading: bool = True, position: bool = True) -> bool:
     """The odometry gate (docs/method.md §6.1): ``pose`` (a match) corrects ``guess``
     (odometry's prediction, in the same frame; ``step`` the motion it predicted over) by more
-    than odometry errs over that motion; ``heading``: its heading judged too, not only its
-    position."""
+    than odometry errs over that motion; ``heading``, ``position``: which of the two are
+    judged."""
     if config.odometry_gate is None:
         return False
     gate, share = config.odometry_gate, config.odometry_gate_share
     correction = between(pose, guess)
     allowed = gate[0] + share[0] * math.hypot(step[0], step[1])
-    return bool(math.hypot(correction[0], correction[1]) > allowed
+    return bool((position and math.hypot(correction[0], correction[1]) > allowed)
                 or (heading and abs(correction[2]) > gate[1] + share[1] * abs(step[2])))
 
 
@@ -97,8 +97,11 @@ class FrontEnd:
         self.keyframe = -1
         self.rel = np.zeros(3)  # the current pose in the keyframe's frame
         self.motion = np.zeros(3)  # last motion between scans, for a scan-only prediction
-        self.last_odometry = np.zeros(3)  # odometry at the previous scan (a copy)
+        self.last_odometry = np.zeros(3)  # odometry's last new reading (a copy)
         self.have_odometry = False
+        # The pose (in the keyframe's frame) of the scan that brought that reading: odometry's
+        # motion is predicted from there (docs/method.md §6.1).
+        self.odometry_rel = np.zeros(3)
         # Odometry at the keyframe's scan, and whether every scan since brought a reading: the
         # node step's odometry, fused with the match's heading (swarmslam.runtime.odometry_noise).
         self.keyframe_odometry = np.zeros(3)
@@ -116,6 +119,9 @@ class FrontEnd:
         self.slid = False  # a match since the keyframe was held to the prediction somewhere
         self.weak = False  # a match since the last node was replaced by odometry
         self.lost_matches = 0
+        self.overruled_odometry = 0  # matches the gate refused that the scans upheld
+        self.stale = False  # the scan being tracked brought odometry's previous reading again
+        self.rescued_matches = 0  # lost matches found again around the scans' own motion
         self.degenerate_matches = 0  # matches held to the prediction along a direction
         self.degeneracy = None  # the last match's (swarmslam.runtime.degeneracy), when measured
         self.status = "ok"
@@ -128,11 +134,12 @@ class FrontEnd:
         if self.keyframe < 0:
             self._start(scan, odometry, stamp)
             return Tracking(self.graph.poses[0].copy(), True, 0, 0.0)
-        step = self._predicted_motion(odometry)
+        base, step, news = self._prediction(odometry)
+        self.stale = odometry is not None and not news  # the same reading as before
         if odometry is not None:
             self.odometry_scale.scale_step(step)
         self.odometry_since_keyframe &= odometry is not None
-        guess = compose(self.rel, step)
+        guess = compose(base, step)
         match = self.matcher.align_scans(scan, self.reference, guess)  # Alg. 5
         self.evaluations = match.evaluations
         pose = match.pose
@@ -140,12 +147,14 @@ class FrontEnd:
         if self.config.front_end.degeneracy_ratio > 0:
             pose = self._constrained(scan, pose, guess)
             self.slid |= self.degeneracy.degenerate
-        if (self._inliers(scan, pose) < self.config.front_end.min_track_inliers
-                or (odometry is not None
-                    and contradicts_odometry(pose, guess, step, self.config.front_end))):
-            pose = self._recover(scan, pose, guess, odometry is not None)
+        # (after the slide along a degenerate axis is dropped: there the box's edge is no sign)
+        inside = not self.matcher.at_box_edge(pose, self.config.front_end.window_margin)
+        if self._lost(scan, pose, guess, step, odometry is not None, inside):
+            pose = self._recover(scan, pose, guess, step, odometry is not None)
         self.motion = between(pose, self.rel)
         self.rel = pose
+        if news:
+            self.odometry_rel[:] = pose
         node_added = self.insert_node(scan, stamp)  # Alg. 6
         self._record(stamp)
         return Tracking(self.pose(), node_added, self.keyframe, match.error)
@@ -186,6 +195,7 @@ class FrontEnd:
                              cov[node])
         self.nodes.store(node, scan)
         self.keyframe = node
+        self.odometry_rel[:] = between(self.odometry_rel, self.rel)  # the new node's frame
         self.rel = np.zeros(3)
         self._odometry_at_keyframe()
         self.rebuild_reference()
@@ -209,7 +219,7 @@ class FrontEnd:
         self.keyframe = node
         self.rel[:], self.motion[:] = 0.0, 0.0
         self.weak, self.have_odometry = False, False
-        self._predicted_motion(odometry)  # the new run's odometry starts here
+        self._prediction(odometry)  # the new run's odometry starts here
         self._odometry_at_keyframe()
         self.rebuild_reference()
         self._record(stamp)
@@ -270,6 +280,7 @@ class FrontEnd:
         self.rebuild_reference()
         if odometry is not None:
             self.last_odometry[:] = odometry
+            self.odometry_rel[:] = 0.0
             self.have_odometry = True
         self._odometry_at_keyframe()
         self._record(stamp)
@@ -309,6 +320,35 @@ class FrontEnd:
         return self.matcher.inlier_fraction(scan, self.reference, pose, c.track_inlier_distance,
                                             c.track_inlier_slope)
 
+    def _lost(self, scan, pose, guess, step, have_odometry: bool, inside: bool) -> bool:
+        """The match has lost track: it is pressed against its search box's edge (the optimum
+        lies beyond), too few of its points land on the keyframe's surfaces, or it contradicts
+        odometry (the gate) without :meth:`_overrules` odometry (docs/method.md §6.1)."""
+        c = self.config.front_end
+        if not inside:
+            return True
+        fit = self._inliers(scan, pose)
+        if fit < c.min_track_inliers:
+            return True
+        if not (have_odometry and contradicts_odometry(pose, guess, step, c)):
+            return False
+        if self._overrules(scan, pose, fit, guess, step, inside):
+            self.overruled_odometry += 1
+            return False
+        return True
+
+    def _overrules(self, scan, pose, fit: float, guess, step, inside: bool) -> bool:
+        """A match (``fit``: its share of points on the keyframe's surfaces) is trusted over
+        odometry's prediction ``guess`` when it fits and clearly better than the prediction
+        does, and is an optimum inside its search box, not one pressed against its edge —
+        where odometry's heading is what errs, or its reading is stale: a match that only
+        moves a new reading's position may be one slid along a corridor, and odometry's
+        position errs little between scans unless its heading does."""
+        c = self.config.front_end
+        return (inside and fit >= c.min_track_inliers
+                and (self.stale or contradicts_odometry(pose, guess, step, c, position=False))
+                and fit >= self._inliers(scan, guess) + c.odometry_gate_fit)
+
     def _constrained(self, scan, pose, guess):
         """The match where the scan pins it, the prediction where it does not
         (swarmslam.runtime.degeneracy; docs/method.md §6.1); the next node's edge is weak along it."""
@@ -319,13 +359,28 @@ class FrontEnd:
             self.degenerate_matches += 1
         return self.degeneracy.remap(pose, guess)
 
-    def _recover(self, scan, pose, guess, have_odometry: bool):
-        """The guided match lost track. With odometry, its prediction stands in (the next
-        node's edge weakened): a wide search can lock onto a shifted pose along a corridor
-        (ACES: eT 0.048 → 0.092 m from one such recovery). On scans alone, search the whole box
-        without a guess — the swarm's strength — and keep the better fitting of the two."""
+    def _recover(self, scan, pose, guess, step, have_odometry: bool):
+        """The guided match lost track. With odometry, the match is sought again around the
+        motion the scans showed last, continued: odometry that lags the scans and then catches
+        up in a burst (MIT-CSAIL's turns) predicts tens of degrees off. That match stands if
+        it fits the scans, and clearly better than odometry's prediction; otherwise the
+        prediction stands in (the next node's edge weakened): a match that merely fits as well
+        may be shifted along a corridor (ACES: eT 0.048 → 0.092 m from one such recovery). On
+        scans alone, search the whole box without a guess — the swarm's strength — and keep
+        the better fitting of the two."""
         self.lost_matches += 1
         if have_odometry:
+            c = self.config.front_end
+            prior = compose(self.rel, self.motion)
+            match = self.matcher.align_scans(scan, self.reference, prior).pose
+            inside = not self.matcher.at_box_edge(match, c.window_margin)
+            if c.degeneracy_ratio > 0:  # along a degenerate axis, odometry's position stands
+                match = self._constrained(scan, match, guess)
+                inside = not self.matcher.at_box_edge(self.degeneracy.remap(match, prior),
+                                                      c.window_margin)
+            if self._overrules(scan, match, self._inliers(scan, match), guess, step, inside):
+                self.rescued_matches += 1
+                return match
             self.weak = True
             return guess
         wide = self.matcher.align_scans(scan, self.reference, None).pose
@@ -335,13 +390,25 @@ class FrontEnd:
         self.keyframe_odometry[:] = self.last_odometry
         self.odometry_since_keyframe = self.have_odometry
 
-    def _predicted_motion(self, odometry):
+    def _prediction(self, odometry):
+        """Where the scan's predicted pose starts (in the keyframe's frame), the motion added
+        to it, and whether odometry brought a new reading. A new reading predicts odometry's
+        motion since its last new one, from the scan that brought that one; the same reading
+        again predicts no motion from the last scan. Odometry read less often than the scans
+        (MIT-CSAIL's, the same for several scans, then caught up at once) says nothing of the
+        motion in between, which the scans followed: its catching up must not count that
+        twice. Without odometry: the last motion the scans showed, continued."""
         if odometry is None:  # scans only, or a reading the inbox dropped (docs/runtime.md
             self.have_odometry = False  # §7): the next reading starts odometry afresh
-            return self.motion  # assume the last motion continues
+            return self.rel, self.motion, False
+        odometry = np.asarray(odometry, np.float64)
+        if self.have_odometry and np.array_equal(odometry, self.last_odometry):
+            return self.rel, np.zeros(3), False
+        if not self.have_odometry:  # the first reading: odometry starts here
+            self.odometry_rel[:] = self.rel
         delta = odometry_motion(odometry, self.last_odometry, self.have_odometry)
         self.have_odometry = True
-        return delta
+        return self.odometry_rel, delta, True
 
     def _record(self, stamp):
         k = self.n_scans
@@ -368,7 +435,8 @@ class FrontEnd:
                 "keyframe_odometry": self.keyframe_odometry.copy(),
                 "odometry_since_keyframe": self.odometry_since_keyframe,
                 "odometry_noise": self.odometry_noise.state(), "slid": self.slid,
-                "odometry_scale": self.odometry_scale.state(self.graph.n_edges)}
+                "odometry_scale": self.odometry_scale.state(self.graph.n_edges),
+                "odometry_rel": self.odometry_rel.copy()}
 
     def restore(self, state: dict) -> None:
         """The state :meth:`state` gave, over a front end of the same configuration built on
@@ -396,6 +464,8 @@ class FrontEnd:
         if "odometry_noise" in state:
             self.odometry_noise.restore(state["odometry_noise"])
         self.slid = bool(state.get("slid", False))
+        # a session saved before stale readings were told apart predicts from its last scan
+        self.odometry_rel[:] = state.get("odometry_rel", self.rel)
         if "odometry_scale" in state:  # a session saved before it learns the scale afresh
             self.odometry_scale.restore(state["odometry_scale"])
         if self.keyframe >= 0 and not 0 <= self.keyframe < n:

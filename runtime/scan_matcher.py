@@ -408,6 +408,16 @@ class ScanMatcher:
             evaluations=int(out[R_EVALUATIONS]),
         )
 
+    def at_box_edge(self, pose, margin: float) -> bool:
+        """The last match's ``pose`` ended within ``margin`` (a share of the half-width) of its
+        search box's edge: the optimum lies at or beyond the box, not inside it."""
+        lo, hi = self._box[0], self._box[1]
+        for d in range(3):
+            centre, half = 0.5 * (lo[d] + hi[d]), 0.5 * (hi[d] - lo[d])
+            if abs(pose[d] - centre) >= (1.0 - margin) * half:
+                return True
+        return False
+
     def curvature(self, scan: PointScan, reference: ReferenceMaps, pose, step) -> np.ndarray:
         """The Hessian of the summed per-point cost at ``pose`` (a 3 × 3 buffer, reused);
         ``step``: the finite-difference steps (m, rad)."""

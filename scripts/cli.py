@@ -251,14 +251,20 @@ def _relations_audit(args) -> int:
 
 
 def _simlog(args) -> int:
+    from dataclasses import replace
+
     from swarmslam.simlog import write_simlog
+    from swarmslam_sim.survey import EFFECT_HELP, EFFECTS
 
     if args.seconds is not None and not args.seconds > 0:
         raise ValueError(f"--seconds must be > 0, got {args.seconds}")
     if not args.rate > 0:
         raise ValueError(f"--rate must be > 0, got {args.rate}")
+    effects = replace(EFFECTS[args.effects], **{
+        name: getattr(args, name) for name in EFFECT_HELP if getattr(args, name) is not None})
     r = write_simlog(args.out, args.site, args.seed, args.scanner, args.rate, args.odometry,
-                     args.format, seconds=args.seconds)
+                     args.format, seconds=args.seconds, effects=effects,
+                     max_turn=args.max_turn, turning=args.effects)
     print(f"{r['scans']} scans over {r['seconds']:.0f} s and {r['metres']:.0f} m; odometry "
           f"{r['odometry_error_end_m']:.2f} m / {r['odometry_error_end_deg']:.1f} deg off at "
           f"the end; {r['relations_count']} relations")
@@ -448,7 +454,7 @@ def build_parser() -> argparse.ArgumentParser:
     _view_options(rp)
     rp.set_defaults(func=_replay)
 
-    from swarmslam_sim.survey import ODOMETRY, SCANNERS, SITES
+    from swarmslam_sim.survey import EFFECT_HELP, EFFECTS, ODOMETRY, SCANNERS, SITES
 
     sl = sub.add_parser("simlog", help="a CARMEN log + relations + truth from a simulated survey")
     sl.add_argument("out", help="log to write (.clf, or .clf.gz); relations, truth (TUM) and "
@@ -461,6 +467,16 @@ def build_parser() -> argparse.ArgumentParser:
     sl.add_argument("--format", default="auto", choices=["auto", "flaser", "robotlaser1"],
                     help="laser lines (auto: FLASER for a 180° scanner, else ROBOTLASER1)")
     sl.add_argument("--seconds", type=float, help="only the route's first seconds")
+    sl.add_argument("--effects", default="none", choices=list(EFFECTS),
+                    help="real-robot effects (robot: stale odometry, fast turns, a moving "
+                         "sweep, range bias, mixed pixels, people); the options below change "
+                         "one each")
+    sl.add_argument("--max-turn", type=float, help="rad/s the robot turns at most (default: "
+                                                   "0.8; with --effects robot 2.0, stopping to "
+                                                   "turn in place at corners)")
+    for name, text in EFFECT_HELP.items():
+        sl.add_argument(f"--{name.replace('_', '-')}", dest=name,
+                        type=int if name == "people" else float, help=text)
     sl.set_defaults(func=_simlog)
 
     re_ = sub.add_parser("relations", help="relations files (Kümmerle et al.)")
@@ -527,11 +543,11 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--seed", type=int, default=0)
     _bench_outputs(m)
     m.set_defaults(func=_bench_matcher)
-    s = bsub.add_parser("slam", help="SLAM on the raw Intel/ACES3/fr-clinic logs, scored by "
+    s = bsub.add_parser("slam", help="SLAM on the raw Intel/ACES3/fr-clinic/MIT-CSAIL logs, scored by "
                                      "relations over seeds")
     s.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
     s.add_argument("--optimizers", default="abc,pso,fa")
-    s.add_argument("--datasets", default="intel,aces,clinic")
+    s.add_argument("--datasets", default="intel,aces,clinic,mit")
     s.add_argument("--seeds", default="0,1,2", help="seeds per run (mean and worst reported)")
     s.add_argument("--modes", default="both", choices=["both", "odometry", "scans"])
     s.add_argument("--limit", type=_at_least_one, help="only the first N scans of each log")
@@ -648,6 +664,10 @@ def _non_negative(text: str) -> float:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    if args.command == "bench":  # what shared the machine goes into its JSON
+        from swarmslam.bench.record import start_watch
+
+        start_watch()
     try:
         return args.func(args)
     except (OSError, ValueError) as e:  # files, ports (pyserial's errors are OSErrors), input

@@ -41,6 +41,11 @@ def is_failure(e_trans, e_rot, max_trans: float = 0.3, max_rot: float = 0.1):
 
 
 LOCAL_GAP = 300.0  # s: relations with endpoints closer in time are "local" (datasets README)
+# s: relations with endpoints closer in time are "short": the front end's own accuracy, before
+# the back end's closures join far ends; their tail (p99, max, count above OUTLIER_DEG) shows
+# gross heading failures the mean hides.
+SHORT_GAP = 10.0
+OUTLIER_DEG = 5.0
 
 
 def nearest_stamps(stamps, times, tolerance: float = 1e-4):
@@ -80,11 +85,13 @@ def relation_errors(stamps, poses, relations, tolerance: float = 1e-4):
 
 
 def kummerle(stamps, poses, relations, tolerance: float = 1e-4,
-             local_gap: float = LOCAL_GAP) -> dict:
+             local_gap: float = LOCAL_GAP, short_gap: float = SHORT_GAP) -> dict:
     """Eqs. 22–23 for the relations whose two timestamps are both in the trajectory, over all
     of them and apart for local (endpoints < ``local_gap`` s apart) and global ones
     (``eT_local``, ``eR_local_deg``, ``relations_local``, likewise ``_global``; NaN-free: a
-    part with no relation is left out).
+    part with no relation is left out); and the short ones' (< ``short_gap`` s apart) mean and
+    tail: ``eT_short``, ``eR_short_deg``, ``eR_short_median_deg``, ``eR_short_p99_deg``,
+    ``eR_short_max_deg``, ``eR_short_over_5deg`` (a count), ``relations_short``.
 
     ``stamps`` and ``poses`` are the estimated trajectory (one pose per scan); a relation's
     timestamp matches a scan within ``tolerance`` seconds.
@@ -106,4 +113,13 @@ def kummerle(stamps, poses, relations, tolerance: float = 1e-4,
                         f"eR_{name}_deg": float(np.mean(e_r[part])),
                         f"eR_{name}_std": float(np.std(e_r[part])),
                         f"relations_{name}": int(part.sum())})
+    short = np.abs(relations.t2[ok] - relations.t1[ok]) < short_gap
+    if np.any(short):
+        e = e_r[short]
+        out.update({"eT_short": float(np.mean(e_t[short])), "eR_short_deg": float(np.mean(e)),
+                    "eR_short_median_deg": float(np.median(e)),
+                    "eR_short_p99_deg": float(np.percentile(e, 99)),
+                    "eR_short_max_deg": float(np.max(e)),
+                    f"eR_short_over_{OUTLIER_DEG:g}deg": int(np.sum(e > OUTLIER_DEG)),
+                    "relations_short": int(short.sum())})
     return out

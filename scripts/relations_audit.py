@@ -155,6 +155,40 @@ def scored_apart(stamps, poses, relations: Relations, audit: Audit) -> dict:
     return out
 
 
+WORST_SHOWN = 10  # the worst relations printed (the JSON keeps WORST_KEPT)
+WORST_KEPT = 50
+
+
+def worst_relations(stamps, poses, relations: Relations, scan_stamps, odometry, audit: Audit,
+                    count: int = WORST_KEPT) -> list[dict]:
+    """The ``count`` relations with the largest heading error of the trajectory, each with
+    odometry's own error there, the fastest odometry turn between its two scans (°/s) and
+    whether its scans contradict it: an error within a degree or two of odometry's, at a fast
+    turn, is one where the trajectory rode odometry."""
+    ok, e_t, e_r = relation_errors(stamps, poses, relations)
+    ok_o, _, e_r_o = relation_errors(scan_stamps, odometry, relations)
+    odometry_error = np.full(len(relations), np.nan)
+    odometry_error[ok_o] = e_r_o
+    i, j, _ = match_relations(scan_stamps, relations)
+    order = np.argsort(scan_stamps, kind="stable")
+    sorted_stamps, heading = scan_stamps[order], np.unwrap(odometry[order, 2])
+    rate = np.abs(np.diff(heading)) / np.maximum(np.diff(sorted_stamps), 1e-3)
+    rank = np.empty(len(order), np.int64)
+    rank[order] = np.arange(len(order))
+    used = np.flatnonzero(ok)
+    out = []
+    for k in np.argsort(-e_r)[:count]:
+        r = used[k]
+        a, b = sorted((int(rank[i[r]]), int(rank[j[r]])))
+        turn = float(np.degrees(rate[a:b].max())) if b > a else 0.0
+        out.append({"t1": float(relations.t1[r]), "t2": float(relations.t2[r]),
+                    "seconds": float(abs(relations.t2[r] - relations.t1[r])),
+                    "eT": float(e_t[k]), "eR_deg": float(e_r[k]),
+                    "odometry_eR_deg": float(odometry_error[r]), "turn_rate_deg_s": turn,
+                    "contradicted": bool(audit.contradicted[r])})
+    return out
+
+
 def audit_command(log_path, relations_path, trajectory_path=None, json_path=None,
                   min_gain: float = MIN_GAIN, plots=None) -> dict:
     """The audit of ``relations_path`` against ``log_path``'s scans and the reference's clock
@@ -188,6 +222,15 @@ def audit_command(log_path, relations_path, trajectory_path=None, json_path=None
                 line += (f"; local eT {s['eT_local']:.4f} m, eR {s['eR_local_deg']:.3f}° "
                          f"({s['relations_local']})")
             print(line)
+    if trajectory_path:
+        result["worst"] = worst_relations(stamps, poses, relations, scan_stamps, odometry, audit)
+        print(f"  the {WORST_SHOWN} worst relations of the trajectory (heading):")
+        print(f"  {'t1':>17} {'s apart':>8} {'eR °':>6} {'odometry °':>10} {'turn °/s':>8}  "
+              f"scans")
+        for w in result["worst"][:WORST_SHOWN]:
+            print(f"  {w['t1']:17.3f} {w['seconds']:8.2f} {w['eR_deg']:6.2f} "
+                  f"{w['odometry_eR_deg']:10.2f} {w['turn_rate_deg_s']:8.1f}  "
+                  f"{'contradict it' if w['contradicted'] else 'agree'}")
     clock = reference_clock(scan_stamps, odometry, relations,
                             (stamps, poses) if trajectory_path else None)
     result["clock"] = clock

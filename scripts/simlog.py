@@ -22,7 +22,7 @@ from swarmslam.runtime.writers import write_bytes_atomic, write_text_atomic
 from swarmslam.carmen import flaser_line, odom_line, robotlaser1_line
 from swarmslam.relations import relations_text
 from swarmslam.tum import tum_lines
-from swarmslam_sim.survey import Survey, run_survey, site
+from swarmslam_sim.survey import Effects, Survey, Turning, run_survey, site
 from swarmslam_sim.world import save_world
 
 
@@ -72,7 +72,8 @@ def log_text(survey: Survey, fmt: str = "auto") -> str:
     lines = [f"# swarmslam simlog: {survey.site.world.name}, {survey.lidar.beams} beams over "
              f"{math.degrees(survey.lidar.fov):g} deg, {rate:g} Hz"]
     for t, odo, r in zip(survey.stamps, survey.odometry, survey.ranges):
-        lines.append(odom_line(odo, t))
+        if survey.odometry_stream:
+            lines.append(odom_line(odo, t))
         if fmt == "flaser":
             lines.append(flaser_line(r, odo, odo, t))
         else:
@@ -83,15 +84,18 @@ def log_text(survey: Survey, fmt: str = "auto") -> str:
 def write_simlog(out, kind: str = "building", seed: int = 0, lidar: str = "sick-0.5",
                  rate_hz: float = 10.0, odometry: str = "good", fmt: str = "auto",
                  sampling: RelationSampling = RelationSampling(),
-                 seconds: float | None = None) -> dict:
-    """Survey the site (the whole route, or its first ``seconds``) and write the log,
-    relations, truth and world next to ``out`` (``.clf`` or ``.clf.gz``); returns the paths
-    and the survey's figures."""
+                 seconds: float | None = None, effects: str | Effects = "none",
+                 turning: str | Turning | None = None, max_turn: float | None = None) -> dict:
+    """Survey the site (the whole route, or its first ``seconds``; with real-robot
+    ``effects``, turning as :func:`run_survey` says) and write the log, relations, truth and
+    world next to ``out`` (``.clf`` or ``.clf.gz``); returns the paths and the survey's
+    figures."""
     out = Path(out)
     stem = out.name[: -len(".gz")] if out.name.endswith(".gz") else out.name
     stem = stem[: -len(".clf")] if stem.endswith(".clf") else stem
     base = out.parent / stem
-    survey = run_survey(site(kind, seed), lidar, rate_hz, odometry, seed, seconds=seconds)
+    survey = run_survey(site(kind, seed), lidar, rate_hz, odometry, seed, seconds=seconds,
+                        effects=effects, turning=turning, max_turn=max_turn)
     text = log_text(survey, fmt).encode("ascii")
     write_bytes_atomic(out, gzip.compress(text, mtime=0) if out.name.endswith(".gz") else text)
     ij, delta = sample_relations(survey.stamps, survey.true_poses,
@@ -104,6 +108,8 @@ def write_simlog(out, kind: str = "building", seed: int = 0, lidar: str = "sick-
     save_world(survey.site.world, paths["world"])
     odo_end = between(survey.odometry[-1], survey.true_poses[-1])
     return {**paths, "scans": len(survey.stamps), "seconds": float(survey.stamps[-1]),
+            "max_turn_deg_s": float(np.degrees(np.max(np.abs(np.diff(np.unwrap(
+                survey.true_poses[:, 2]))), initial=0.0)) * rate_hz),
             "metres": survey.length, "relations_count": len(ij),
             "odometry_error_end_m": float(math.hypot(odo_end[0], odo_end[1])),
             "odometry_error_end_deg": float(abs(math.degrees(odo_end[2])))}

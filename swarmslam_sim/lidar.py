@@ -87,8 +87,13 @@ class Lidar:
     def cast(self, pose, out=None) -> np.ndarray:
         """Exact ranges (no noise); inf where nothing lies within max_range."""
         out = np.empty(self.config.beams) if out is None else out
+        return self.cast_angles(pose, self.angles, out)
+
+    def cast_angles(self, pose, angles, out) -> np.ndarray:
+        """Exact ranges of beams at ``angles`` (the scanner's frame) from ``pose``; inf where
+        nothing lies within max_range."""
         self._pose[:] = pose
-        cast_scan(self._pose, self.angles, self.config.max_range, self.world.segments,
+        cast_scan(self._pose, angles, self.config.max_range, self.world.segments,
                   self.wall_radius, self.grid, self.cell_start, self.cell_items, out)
         return out
 

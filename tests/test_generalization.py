@@ -293,7 +293,7 @@ def test_a_full_case_name_makes_any_case_and_a_part_picks_from_the_suite():
     assert all(parse_case(c.name) == c for c in CASES)  # every suite name reads back
     held_out = select(["corridor-sick-0.5-10hz-noisy-s13", "hall"])
     assert held_out[0].name == "corridor-sick-0.5-10hz-noisy-s13" and held_out[0] not in CASES
-    assert [c.site for c in held_out[1:]] == ["hall", "hall"]
+    assert held_out[1:] == tuple(c for c in CASES if c.site == "hall") and len(held_out) > 2
     scans_only = parse_case("building-sick-1-4.7hz-scans-only-s7")
     assert not scans_only.use_odometry and scans_only.seed == 7 and scans_only.rate_hz == 4.7
     assert parse_case("building-sick-9-10hz-good-s1") is None  # no such scanner

@@ -66,6 +66,18 @@ def test_true_relations_pass_and_displaced_ones_are_flagged_and_scored_apart(tmp
     assert contradicted["eT"] > 0.4 and contradicted["relations_used"] == wrong.sum()
     printed = capsys.readouterr().out
     assert "contradicted" in printed and "clock: the trajectory's" in printed
+    # the worst relations of the (true) trajectory: the displaced ones, 0.08 rad off, where
+    # odometry (the truth here) errs alike; each with the fastest turn between its scans
+    worst = result["worst"]
+    assert len(worst) == len(i) and "worst relations of the trajectory" in printed
+    assert all(w["contradicted"] for w in worst[: wrong.sum()])
+    assert not any(w["contradicted"] for w in worst[wrong.sum():])
+    assert worst[0]["eR_deg"] == pytest.approx(np.degrees(0.08), abs=0.05)
+    assert worst[0]["odometry_eR_deg"] == pytest.approx(worst[0]["eR_deg"], abs=0.05)
+    turns = np.degrees(np.abs(np.diff(np.unwrap(poses[:, 2]))))  # ° per 1 s step
+    for w in worst:
+        a, b = int(w["t1"] - stamps[0]), int(w["t2"] - stamps[0])
+        assert w["turn_rate_deg_s"] == pytest.approx(turns[a:b].max(), abs=0.01)
     # the true trajectory, on the reference's clock, has no slope; odometry (= truth) agrees
     # with every relation but the displaced ones
     assert abs(result["clock"]["trajectory_slope_ms"]) < 0.01  # (the TUM file rounds)

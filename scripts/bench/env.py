@@ -13,8 +13,8 @@ import time
 
 import gymnasium as gym
 
-from swarmslam.runtime.writers import write_json_atomic
 from swarmslam.plots import bars, require_matplotlib
+from swarmslam.bench.record import save_results
 
 TARGETS = {"steps_per_s_without_slam": 8000, "steps_per_s_with_slam": 400}
 
@@ -123,5 +123,5 @@ def bench_env(world: str = "office", steps: int = 5000, slam_steps: int = 1000,
              log=True, targets={"without SLAM": TARGETS["steps_per_s_without_slam"],
                                 "with SLAM": TARGETS["steps_per_s_with_slam"]})
     if json_path:
-        write_json_atomic(json_path, r)
+        save_results(json_path, r)
     return r

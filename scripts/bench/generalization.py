@@ -26,12 +26,12 @@ import numpy as np
 from swarmslam.runtime.config import SlamConfig, override
 from swarmslam.runtime.pose import between
 from swarmslam.runtime.pose_graph import LOOP
-from swarmslam.runtime.writers import write_json_atomic
 from swarmslam.plots import bars, require_matplotlib
 from swarmslam.replay import replay_run
 from swarmslam.simlog import write_simlog
 from swarmslam.tum import read_tum
-from swarmslam_sim.survey import ODOMETRY, SCANNERS, SITES
+from swarmslam_sim.survey import EFFECTS, ODOMETRY, SCANNERS, SITES
+from swarmslam.bench.record import save_results
 
 CORRECT_LOOP = (0.2, math.radians(2.0))  # m, rad
 REVISIT = (1.0, math.radians(90.0), 30.0)  # m, rad apart in heading, s apart in time
@@ -46,10 +46,12 @@ class Case:
     use_odometry: bool = True
     seed: int = 0
     seconds: float | None = None  # the route's first seconds only (None: all of it)
+    effects: str = "none"  # real-robot effects (swarmslam_sim.survey.EFFECTS)
 
     @property
     def name(self) -> str:
         odo = self.odometry if self.use_odometry else "scans-only"
+        odo += "" if self.effects == "none" else f"-{self.effects}"
         part = f"-{self.seconds:g}s" if self.seconds else ""
         return f"{self.site}-{self.scanner}-{self.rate_hz:g}hz-{odo}-s{self.seed}{part}"
 
@@ -70,6 +72,10 @@ CASES = (
     Case("corridor", "rplidar-a1", 5.5, "biased", seed=1),
     Case("hall", "rplidar-a1", 5.5, "good"),
     Case("hall", "sick-0.5", 4.7, "noisy", seed=1),
+    # A real robot's effects (odometry read once every 0.8 s, stale in between; turns up to
+    # 2 rad/s; a moving sweep, range bias, mixed pixels, people): MIT-CSAIL's heading failures.
+    Case("building", "sick-0.5", 4.7, "good", seed=5, effects="robot"),
+    Case("hall", "rplidar-a1", 5.5, "noisy", seed=6, effects="robot"),
 )
 
 
@@ -176,7 +182,7 @@ def run_case(case: Case, work: Path, config: SlamConfig | None = None, floor: bo
              echo=print) -> dict:
     log = work / f"{case.name}.clf.gz"
     made = write_simlog(log, case.site, case.seed, case.scanner, case.rate_hz, case.odometry,
-                        seconds=case.seconds)
+                        seconds=case.seconds, effects=case.effects)
     stamps, truth = read_tum(made["truth"])
     result = {"case": case.name, **asdict(case), "scans": made["scans"],
               "metres": round(made["metres"], 1),
@@ -241,7 +247,7 @@ def bench_generalization(cases=CASES, json_path=None, work=None, config=None, fl
              {"precision": dict(zip(names, (r["loop_precision"] for r in runs))),
               "recall": dict(zip(names, (r["loop_recall"] for r in runs)))})
     if json_path:
-        write_json_atomic(json_path, results)
+        save_results(json_path, results)
     return results
 
 
@@ -273,17 +279,23 @@ _CASE_NAME = re.compile(r"(?P<site>[a-z]+)-(?P<scanner>.+)-(?P<rate>\d+(?:\.\d+)
 
 
 def parse_case(name: str) -> Case | None:
-    """A case from its full name (``corridor-sick-1-10hz-noisy-s13``): any site, scanner, rate,
-    odometry and seed, in the suite or not (held-out cases); None if the name is not one."""
+    """A case from its full name (``corridor-sick-1-10hz-noisy-s13``, with effects
+    ``building-sick-0.5-4.7hz-good-robot-s5``): any site, scanner, rate, odometry, effects and
+    seed, in the suite or not (held-out cases); None if the name is not one."""
     m = _CASE_NAME.fullmatch(name)
     if m is None:
         return None
-    odometry, use_odometry = m["odometry"], m["odometry"] != "scans-only"
+    odometry, effects = m["odometry"], "none"
+    for known in EFFECTS:
+        if known != "none" and odometry.endswith(f"-{known}"):
+            odometry, effects = odometry[: -len(known) - 1], known
+    use_odometry = odometry != "scans-only"
     if not use_odometry:
         odometry = "good"
     if m["site"] not in SITES or m["scanner"] not in SCANNERS or odometry not in ODOMETRY:
         return None
-    return Case(m["site"], m["scanner"], float(m["rate"]), odometry, use_odometry, int(m["seed"]))
+    return Case(m["site"], m["scanner"], float(m["rate"]), odometry, use_odometry,
+                int(m["seed"]), effects=effects)
 
 
 def select(names) -> tuple[Case, ...]:

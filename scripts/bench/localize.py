@@ -34,13 +34,14 @@ from swarmslam.runtime.localization import TRACKING
 from swarmslam.runtime.pose import between
 from swarmslam.runtime.relocalization import Ambiguous, Located
 from swarmslam.runtime.scan import PointScan
-from swarmslam.runtime.writers import write_json_atomic, write_text_atomic
+from swarmslam.runtime.writers import write_text_atomic
 from swarmslam.bench.slam import LOGS
 from swarmslam.carmen import read_carmen
 from swarmslam.datasets import require
 from swarmslam.plots import bars, latency_histograms, require_matplotlib
 from swarmslam.progress import Progress
 from swarmslam.replay import replay, robot_frame_scan
+from swarmslam.bench.record import save_results
 
 SUCCESS_DISTANCE = 0.3  # m
 SUCCESS_ANGLE = math.radians(5.0)
@@ -225,7 +226,7 @@ def bench_localize(data_dir: Path, logs=tuple(LOGS), queries: int = 200, seed: i
              f"{row['tracking_error_m_max']:.2f} m max), {row['tracking_ms_p99']:.1f} ms p99, "
              f"{row['tracking_deadline_misses']} misses, map unchanged: {row['map_unchanged']}")
         if json_path:
-            write_json_atomic(json_path, results)
+            save_results(json_path, results)
     if plots:
         plot_localize(plots, results["logs"])
     return results

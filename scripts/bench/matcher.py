@@ -19,13 +19,13 @@ import numpy as np
 from swarmslam.runtime.pose import between
 from swarmslam.runtime.scan import PointScan
 from swarmslam.runtime.scan_matcher import MatcherConfig, ScanMatcher
-from swarmslam.runtime.writers import write_json_atomic
 from swarmslam.carmen import read_carmen
 from swarmslam.datasets import require
 from swarmslam.icp import icp
 from swarmslam.metrics import is_failure, pair_errors, relative_errors
 from swarmslam.plots import matcher_errors, require_matplotlib
 from swarmslam.progress import Progress
+from swarmslam.bench.record import save_results
 
 DATASETS = {"intel": "intel-corrected.log.gz", "aces": "aces-corrected.log.gz"}
 EQ24_PAIRS = 50
@@ -143,7 +143,7 @@ def bench_matcher(data_dir: Path, optimizers=("abc", "pso", "fa"), datasets=tupl
             matcher_errors(plots, name, errors)
         echo(format_table(name, rows))
     if json_path:
-        write_json_atomic(json_path, results)
+        save_results(json_path, results)
     return results
 
 

@@ -10,10 +10,10 @@ import time
 from pathlib import Path
 
 from swarmslam.runtime.graph_optimizer import GaussNewton
-from swarmslam.runtime.writers import write_json_atomic
 from swarmslam.datasets import require
 from swarmslam.g2o import read_g2o
 from swarmslam.plots import bars, require_matplotlib
+from swarmslam.bench.record import save_results
 
 GRAPHS = {
     "INTEL": ("input_INTEL_g2o.g2o", 215.830, 12.0),
@@ -53,5 +53,5 @@ def bench_posegraph(data_dir: Path, repeats: int = 5, json_path=None, echo=print
              {"ours (median)": {k: v["ms_median"] for k, v in g.items()},
               "g2o (published)": {k: v["g2o_ms"] for k, v in g.items()}}, log=True)
     if json_path:
-        write_json_atomic(json_path, results)
+        save_results(json_path, results)
     return results

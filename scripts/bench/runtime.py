@@ -30,7 +30,6 @@ from swarmslam.runtime.config import SlamConfig, override
 from swarmslam.runtime.fixed_rate import SlamRuntime
 from swarmslam.runtime.scan import PointScan
 from swarmslam.runtime.warm_up import LoopDrive
-from swarmslam.runtime.writers import write_json_atomic
 from swarmslam.carmen import read_carmen
 from swarmslam.datasets import require
 from swarmslam.metrics import kummerle
@@ -39,6 +38,7 @@ from swarmslam.progress import Progress
 from swarmslam.relations import read_relations
 from swarmslam.replay import replay, robot_frame_scan
 from swarmslam.run_view import RunWatch, frame_of
+from swarmslam.bench.record import save_results
 
 WARM_UP = 1000  # scans before RSS and traced memory are taken as the baseline
 
@@ -256,7 +256,7 @@ def bench_runtime(data_dir: Path, optimizer="abc", realtime_minutes=2.0, traced_
         if view_scans > 0:
             latency_histograms(plots, by_view, budget, "runtime-view")
     if json_path:
-        write_json_atomic(json_path, result)
+        save_results(json_path, result)
     return result
 
 
@@ -351,5 +351,5 @@ def bench_soak(minutes: float, json_path=None, echo=print, seed=0, plots=None) -
                    {"RSS (MiB)": (ticks, [x["rss_mib"] for x in samples]),
                     "traced by tracemalloc (KiB)": (ticks, [x["traced_kib"] for x in samples])})
     if json_path:
-        write_json_atomic(json_path, result)
+        save_results(json_path, result)
     return result

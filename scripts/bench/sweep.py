@@ -10,8 +10,8 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from swarmslam.runtime.writers import write_json_atomic
 from swarmslam.sweep import KEPT, sweep
+from swarmslam.bench.record import save_results
 
 COMPARED = tuple(k for k in KEPT if k not in ("wall_seconds", "real_time_factor",
                                               "latency_ms_p99"))
@@ -37,5 +37,5 @@ def bench_sweep(spec, workers: int = 2, json_path=None, echo=print) -> dict:
          f"{walls['ray']:.1f} s ({result['ray_share_of_serial']:.0%} of serial); "
          f"same figures: {'yes' if not differ else 'no, ' + ', '.join(differ)}")
     if json_path:
-        write_json_atomic(json_path, result)
+        save_results(json_path, result)
     return result
