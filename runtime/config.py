@@ -133,14 +133,17 @@ class SwarmConfig(Section):
     KEY = "matcher.swarm"
     optimizer: str = _setting("abc", "the swarm method", choices=OPTIMIZERS)
     members: int | None = _setting(
-        None, "PSO particles / ABC colony (2 × food sources) / fireflies; none: Table 1", ge=2)
+        None, "PSO particles / ABC colony (2 × food sources) / fireflies; none: Table 1", ge=2,
+        le=10_000)
     params: tuple[float, ...] | None = _setting(
         None, "the method's parameters (PSO w c1 c2; ABC limit; FA β0 γ α); none: Table 1")
-    max_iterations: int = _setting(1000, "halting rule 1: iterations", ge=1)
-    stagnation_iterations: int = _setting(50, "halting rule 2: iterations without gain", ge=1)
+    max_iterations: int = _setting(1000, "halting rule 1: iterations", ge=1, le=1_000_000)
+    stagnation_iterations: int = _setting(50, "halting rule 2: iterations without gain", ge=1,
+                                         le=1_000_000)
     stagnation_tol: float = _setting(1e-6, "what counts as a gain for rule 2", ge=0)
     target_value: float = _setting(1e-6, "halting rule 3: stop below this objective value")
-    max_evaluations: int = _setting(0, "evaluation budget (0: the halting rules only)", ge=0)
+    max_evaluations: int = _setting(0, "evaluation budget (0: the halting rules only)", ge=0,
+                                   le=100_000_000)
 
     @property
     def kind(self) -> int:
@@ -177,7 +180,8 @@ class MatcherConfig(Section):
     coarse_resolution: float = _setting(0.1, "m, the global stage's coarse field (0: none)", ge=0)
     coarse_radius: float = _setting(0.6, "m, truncation of the coarse field", gt=0)
     stride: int = _setting(2, "the global stage uses every stride-th point", ge=1)
-    refine_evaluations: int = _setting(600, "budget of the local stage (0: none)", ge=0)
+    refine_evaluations: int = _setting(600, "budget of the local stage (0: none)", ge=0,
+                                      le=10_000_000)
     refine_window: tuple[float, float, float] = _setting(
         (0.15, 0.15, 0.08), "half-widths (m, m, rad) of the local stage", gt=0)
     polish_step: tuple[float, float] = _setting(
@@ -186,7 +190,7 @@ class MatcherConfig(Section):
     polish_halvings: int = _setting(
         6, "times the compass search halves its steps before it ends", ge=0)
     polish_evaluations: int = _setting(
-        300, "budget of the compass search (0: no polish)", ge=0)
+        300, "budget of the compass search (0: no polish)", ge=0, le=10_000_000)
     predict_first: float = _setting(
         0.0, "with a guess, the local stage runs first at it; its match stands if λ is at "
         "most this many times the running mean λ, skipping the global stage (0: off)", ge=0)
@@ -194,7 +198,8 @@ class MatcherConfig(Section):
         (2.0, 2.0, 1.6), "half-widths of the box without a guess (m, m, rad)", gt=0)
     guess_window: tuple[float, float, float] = _setting(
         (0.3, 0.3, 0.3), "half-widths of the box around a guess (m, m, rad)", gt=0)
-    grid_cells: int = _setting(1024, "capacity per side of the reference grids", ge=8)
+    grid_cells: int = _setting(1024, "capacity per side of the reference grids", ge=8,
+                              le=8192)
     scan_to_map: bool = _setting(False, "Alg. 5's scan-to-map fallback (Eq. 16)")
     robot_diameter: float = _setting(0.35, "m, for Eq. 17", gt=0)
     occupied_radius: float = _setting(0.1, "m, ramp around obstacles in the local grid", gt=0)
@@ -222,7 +227,8 @@ class SensorConfig(Section):
     name: str = _setting("sick-lms200", "the preset this came from (a label)")
     min_range: float = _setting(0.05, "m: nearer readings are dropped", ge=0)
     max_range: float = _setting(80.0, "m: readings at or beyond are 'no return'", gt=0)
-    max_points: int = _setting(1440, "points kept per scan (≥ samples per rotation)", ge=1)
+    max_points: int = _setting(1440, "points kept per scan (≥ samples per rotation)", ge=1,
+                              le=100_000)
 
 
 @dataclass(frozen=True)
@@ -246,9 +252,11 @@ class CapacityConfig(Section):
     """What grows with time, fixed at start-up (docs/runtime.md §4)."""
 
     KEY = "capacity"
-    max_nodes: int = _setting(5000, "pose-graph nodes", ge=2)
-    max_edges: int = _setting(20000, "pose-graph edges (≈ 1 + loops per node)", ge=1)
-    max_scans: int = _setting(100000, "trajectory poses kept (one per scan)", ge=1)
+    max_nodes: int = _setting(5000, "pose-graph nodes", ge=2, le=1_000_000)
+    max_edges: int = _setting(20000, "pose-graph edges (≈ 1 + loops per node)", ge=1,
+                             le=10_000_000)
+    max_scans: int = _setting(100000, "trajectory poses kept (one per scan)", ge=1,
+                             le=100_000_000)
 
 
 @dataclass(frozen=True)
@@ -284,12 +292,16 @@ class FrontEndConfig(Section):
         0.1, "a match the gate refuses for its heading (or against a stale reading) stands when "
         "its share of points on the keyframe's surfaces exceeds odometry's prediction's by this "
         "much: the scans overrule odometry (docs/method.md §6.1); 1: never", ge=0, le=1)
+    stale_turn_window: float = _setting(
+        0.6, "rad: after odometry's reading came again unchanged (stale), a lost match is "
+        "sought again this far either side in heading (a robot may have turned in place "
+        "meanwhile)", gt=0, le=math.pi)
     window_margin: float = _setting(
         0.05, "a match within this share of its search box's edge found no optimum inside the "
         "box: tracking is lost", ge=0, lt=1)
     submap_nodes: int = _setting(
         3, "node scans in the keyframe reference: the newest and those just before it, placed "
-        "by the graph (1: the newest alone)", ge=1)
+        "by the graph (1: the newest alone)", ge=1, le=100)
     degeneracy_ratio: float = _setting(
         0.12, "a translation direction the match pins less than this share of the other is "
         "degenerate (a plain corridor's axis): the prediction stands in along it; 0: off",
@@ -352,8 +364,8 @@ class LoopClosureConfig(Section):
         "(0: every node is searched)", ge=0)
     exclude_recent: int = _setting(10, "nodes just behind the new one are neighbours, not loops",
                                    ge=1)
-    max_candidates: int = _setting(8, "gated candidates kept, closest first", ge=1)
-    max_attempts: int = _setting(3, "alignments tried per new node", ge=1)
+    max_candidates: int = _setting(8, "gated candidates kept, closest first", ge=1, le=10_000)
+    max_attempts: int = _setting(3, "alignments tried per new node", ge=1, le=10_000)
     chi2_gate: float = _setting(7.81, "χ²₃ at 95% on the new edge's own error after optimising",
                                 gt=0)
     total_gate: float = _setting(16.27, "χ²₃ at 99.9% on the rise of the total error", gt=0)
@@ -371,13 +383,19 @@ class LoopClosureConfig(Section):
     inlier_distance: float = _setting(0.2, "m: a point this near a seen surface is on it", gt=0)
     inlier_slope: float = _setting(0.01, "m per m of range added to inlier_distance (beams "
                                    "spread and graze)", ge=0)
-    bearing_bins: int = _setting(720, "bearing bins of a submap scan's range image", ge=8)
+    bearing_bins: int = _setting(720, "bearing bins of a submap scan's range image", ge=8,
+                                le=100_000)
     position_floor: float = _setting(0.1, "m: minimum std of the relative position in the gate",
                                      ge=0)
-    submap_nodes: int = _setting(2, "node scans either side of the candidate in its submap", ge=0)
+    submap_nodes: int = _setting(2, "node scans either side of the candidate in its submap", ge=0,
+                                 le=50)
     search_window: tuple[float, float, float] = _setting(
         (2.0, 2.0, 0.5), "least half-widths of the loop match's box around the graph's estimate",
         gt=0)
+    stale_turn_window: float = _setting(
+        0.6, "rad: after odometry's reading came again unchanged (stale), a lost match is "
+        "sought again this far either side in heading (a robot may have turned in place "
+        "meanwhile)", gt=0, le=math.pi)
     window_margin: float = _setting(
         0.05, "a loop match within this share of its box's edge is refused: the optimum lies at "
         "or beyond the box, not inside it", ge=0, lt=1)
@@ -583,7 +601,8 @@ class MapConfig(Section):
     KEY = "map"
     resolution: float = _setting(0.05, "m per cell", gt=0)
     max_range: float = _setting(30.0, "m: readings beyond are not drawn", gt=0)
-    max_cells: int = _setting(4096, "cells per side at most (the map coarsens beyond)", ge=16)
+    max_cells: int = _setting(4096, "cells per side at most (the map coarsens beyond)", ge=16,
+                             le=65_536)
     margin: float = _setting(1.0, "m of unknown around what was seen", ge=0)
 
 
@@ -603,7 +622,7 @@ class RuntimeConfig(Section):
                                            "share", gt=0, le=1)
     front_end_cost_smoothing: float = _setting(
         0.1, "weight of the newest tick in the running front-end cost", gt=0, le=1)
-    loop_queue: int = _setting(64, "nodes awaiting their loop search", ge=1)
+    loop_queue: int = _setting(64, "nodes awaiting their loop search", ge=1, le=1_000_000)
     max_deferred_ticks: int = _setting(10, "a back-end slice waits at most this many ticks",
                                        ge=0)
     slice_cost_decay: float = _setting(
@@ -612,10 +631,10 @@ class RuntimeConfig(Section):
         0.95, "a measured slice cost replaces the estimate unless this × the estimate is "
         "larger", gt=0, le=1)
     latency_window: int = _setting(4096, "recent tick latencies kept for the median / p99",
-                                   ge=1)
+                                   ge=1, le=10_000_000)
     commit_memory: bool | None = _setting(
         None, "back every buffer with memory at start-up (none: when budgeted)")
-    warm_up_scans: int = _setting(120, "synthetic scans the warm-up runs", ge=10)
+    warm_up_scans: int = _setting(120, "synthetic scans the warm-up runs", ge=10, le=100_000)
     autosave_seconds: float = _setting(60.0, "s between session autosaves of a live run "
                                        "(written beside the loop, atomically; 0: none)", ge=0)
 

@@ -35,9 +35,10 @@ import numpy as np
 
 from swarmslam.runtime import session
 from swarmslam.runtime.config import SensorConfig, SlamConfig, from_dict, override, to_dict
-from swarmslam.runtime.inbox import ScanInbox
+from swarmslam.runtime.inbox import ScanInbox, real_array
 from swarmslam.runtime.localization import Localizer
 from swarmslam.runtime.map_tracking import SavedMap
+from swarmslam.runtime.resources import check_memory
 from swarmslam.runtime.scan import PointScan
 from swarmslam.runtime.slam import GraphSlam
 from swarmslam.runtime.step_result import StepResult
@@ -141,6 +142,7 @@ class SlamRuntime:
         """``saved_map``: localization mode — track in that map, never changing it
         (:class:`swarmslam.runtime.localization.Localizer`; ``initial_pose`` None: search for it)."""
         self.config = config or SlamConfig()
+        check_memory(self.config)  # before any buffer is allocated
         rc = self.config.runtime
         self.slam = (GraphSlam(self.config, seed=seed, initial_pose=initial_pose)
                      if saved_map is None else
@@ -223,9 +225,15 @@ class SlamRuntime:
             self.slam.warm_up()
         return time.perf_counter() - t0
 
-    def process(self, scan: PointScan, odometry=None, stamp: float = 0.0) -> StepResult | None:
-        """Hand over one scan and run a tick on it at once: log replay and the simulator."""
-        self.inbox.put_points(scan.buffer, scan.count, stamp, odometry)
+    def process(self, scan, odometry=None, stamp: float = 0.0) -> StepResult | None:
+        """Hand over one scan and run a tick on it at once: log replay and the simulator.
+        ``scan``: a :class:`PointScan`, or an (N, 2) array of points (robot frame, m);
+        ``odometry``: the robot's (x, y, θ) at the scan, if known."""
+        if isinstance(scan, PointScan):
+            self.inbox.put_points(scan.buffer, scan.count, stamp, odometry)
+        else:
+            points = real_array("scan", scan, 2)
+            self.inbox.put_points(points, points.shape[0], stamp, odometry)
         return self.tick()
 
     def drain(self) -> int:

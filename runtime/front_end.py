@@ -79,6 +79,8 @@ class FrontEnd:
         points = config.sensor.max_points
         submap_nodes = config.front_end.submap_nodes
         self.matcher = ScanMatcher(config.matcher, seed=seed)
+        g = config.matcher.guess_window  # a lost match's box after a stale reading
+        self._turn_window = np.array([g[0], g[1], max(g[2], config.front_end.stale_turn_window)])
         self.reference = self.matcher.new_reference()
         self._node_scan = PointScan(points)
         self._submap = PointScan(points * submap_nodes)
@@ -361,8 +363,9 @@ class FrontEnd:
 
     def _recover(self, scan, pose, guess, step, have_odometry: bool):
         """The guided match lost track. With odometry, the match is sought again around the
-        motion the scans showed last, continued: odometry that lags the scans and then catches
-        up in a burst (MIT-CSAIL's turns) predicts tens of degrees off. That match stands if
+        motion the scans showed last, continued (after a stale reading, over a heading window
+        as wide as ``stale_turn_window``): odometry that lags the scans and then catches up in
+        a burst (MIT-CSAIL's turns) predicts tens of degrees off. That match stands if
         it fits the scans, and clearly better than odometry's prediction; otherwise the
         prediction stands in (the next node's edge weakened): a match that merely fits as well
         may be shifted along a corridor (ACES: eT 0.048 → 0.092 m from one such recovery). On
@@ -372,7 +375,10 @@ class FrontEnd:
         if have_odometry:
             c = self.config.front_end
             prior = compose(self.rel, self.motion)
-            match = self.matcher.align_scans(scan, self.reference, prior).pose
+            # (a stale reading says nothing of a turn in place since: 2 rad/s for a scan at
+            # 4.7 Hz is 24°, beyond the guess window; the scans' last motion may not show it)
+            window = self._turn_window if self.stale else None
+            match = self.matcher.align_scans(scan, self.reference, prior, window).pose
             inside = not self.matcher.at_box_edge(match, c.window_margin)
             if c.degeneracy_ratio > 0:  # along a degenerate axis, odometry's position stands
                 match = self._constrained(scan, match, guess)

@@ -21,7 +21,27 @@ import threading
 import numpy as np
 
 from swarmslam.runtime.config import InputConfig
-from swarmslam.runtime.scan import PointScan, ranges_to_points
+from swarmslam.runtime.scan import PointScan, finite_points, ranges_to_points
+
+
+# What a record may say (docs/runtime.md §7): stamps are seconds since 1970 or since the log
+# began, up to the year 2286; a robot stays within 1,000 km of its odometry's origin; a heading
+# wound beyond 10^4 rad has lost its precision (wrapped, it is noise).
+MAX_STAMP = 1e10  # s
+MAX_COORDINATE = 1e6  # m
+MAX_HEADING = 1e4  # rad
+
+
+def real_array(name: str, values, ndim: int) -> np.ndarray:
+    """``values`` as a float64 array of ``ndim`` dimensions (``ndim`` 2: N × 2 points), or a
+    ValueError naming the argument (a list is taken; complex, text or another shape is not)."""
+    array = np.asarray(values)
+    if array.dtype.kind not in "fiu" or array.dtype.kind == "b":
+        raise ValueError(f"{name}: needs real numbers, got an array of {array.dtype}")
+    if array.ndim != ndim or (ndim == 2 and array.shape[1] != 2):
+        shape = "(N,)" if ndim == 1 else "(N, 2)"
+        raise ValueError(f"{name}: needs shape {shape}, got {array.shape}")
+    return np.ascontiguousarray(array, dtype=np.float64)
 
 
 class ScanInbox:
@@ -42,6 +62,7 @@ class ScanInbox:
         self.empty = 0  # scans with no valid reading, refused
         self.bad_stamps = 0  # scans with a non-finite or backward timestamp, refused
         self.odometry_non_finite = 0  # readings dropped from their scan
+        self.odometry_out_of_range = 0  # readings no robot gives (beyond the bounds below)
         self.odometry_jumps = 0  # readings further than the robot moves, dropped
         self._last_stamp = -math.inf  # the newest scan's timestamp
         self._last_reading = np.zeros(3)  # the newest finite odometry reading, and its time
@@ -51,8 +72,9 @@ class ScanInbox:
     def put_ranges(self, *, angles, ranges, stamp: float, odometry=None) -> bool:
         """Hand over one scan as beam angles (rad, robot frame) and ranges (m), float64
         arrays, by keyword only (two arrays of one shape are easily swapped; a positional call
-        fails instead). Readings outside the sensor's ranges are dropped here; a scan with none
-        left is refused (False)."""
+        fails instead). Readings outside the sensor's ranges, or not finite, are dropped here;
+        a scan with none left is refused (False)."""
+        angles, ranges = real_array("angles", angles, 1), real_array("ranges", ranges, 1)
         with self._lock:
             if ranges.shape[0] != angles.shape[0]:
                 raise ValueError(f"{ranges.shape[0]} ranges but {angles.shape[0]} angles")
@@ -61,16 +83,23 @@ class ScanInbox:
             return self._accept(n, stamp, odometry)
 
     def put_points(self, points, count: int, stamp: float, odometry=None) -> bool:
-        """Hand over ``points[:count]`` (robot frame, metres)."""
+        """Hand over ``points[:count]`` (robot frame, metres; an (N, 2) array). Points that are
+        not finite are dropped; a scan with none left is refused (False)."""
+        points = real_array("points", points, 2)
         with self._lock:
-            n = min(count, self._pending.capacity)
-            self._pending.buffer[:n] = points[:n]
+            n = finite_points(points, min(int(count), points.shape[0]), self._pending.buffer)
             return self._accept(n, stamp, odometry)
 
     def _accept(self, n, stamp, odometry) -> bool:
         self.received += 1
-        stamp = float(stamp)
-        if not stamp >= self._last_stamp or stamp == math.inf:  # NaN, ±inf, or backwards
+        try:
+            stamp = float(stamp)
+        except (TypeError, ValueError):
+            raise ValueError(f"stamp: needs a number (seconds), got {stamp!r}") from None
+        if odometry is not None and np.shape(odometry) != (3,):
+            raise ValueError(f"odometry: needs (x, y, θ), got shape {np.shape(odometry)}")
+        # not finite, beyond the year 2286 (or as far before 1970), or backwards
+        if not (abs(stamp) <= MAX_STAMP and stamp >= self._last_stamp):
             self.bad_stamps += 1
             return False
         self._last_stamp = stamp
@@ -96,6 +125,11 @@ class ScanInbox:
         x, y, theta = float(odometry[0]), float(odometry[1]), float(odometry[2])
         if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(theta)):
             self.odometry_non_finite += 1
+            self._odometry_break = True
+            return False
+        if not (abs(x) <= MAX_COORDINATE and abs(y) <= MAX_COORDINATE
+                and abs(theta) <= MAX_HEADING):
+            self.odometry_out_of_range += 1
             self._odometry_break = True
             return False
         last, lim = self._last_reading, self.limits
@@ -137,6 +171,7 @@ class ScanInbox:
         return {"stale_scans": self.stale, "empty_scans": self.empty,
                 "bad_stamp_scans": self.bad_stamps,
                 "odometry_non_finite": self.odometry_non_finite,
+                "odometry_out_of_range": self.odometry_out_of_range,
                 "odometry_jumps": self.odometry_jumps}
 
     def skipped(self) -> str:
@@ -146,6 +181,7 @@ class ScanInbox:
     def state(self) -> dict:
         return {"received": self.received, "stale": self.stale, "empty": self.empty,
                 "bad_stamps": self.bad_stamps, "odometry_non_finite": self.odometry_non_finite,
+                "odometry_out_of_range": self.odometry_out_of_range,
                 "odometry_jumps": self.odometry_jumps}
 
     def restore(self, state: dict) -> None:
@@ -156,10 +192,12 @@ class ScanInbox:
         self.bad_stamps = int(state.get("bad_stamps", 0))
         self.odometry_non_finite = int(state.get("odometry_non_finite", 0))
         self.odometry_jumps = int(state.get("odometry_jumps", 0))
+        self.odometry_out_of_range = int(state.get("odometry_out_of_range", 0))
 
 
 SKIPPED = {"empty_scans": "scans with no return", "bad_stamp_scans": "bad timestamps",
-           "odometry_non_finite": "non-finite odometry", "odometry_jumps": "odometry jumps"}
+           "odometry_non_finite": "non-finite odometry",
+           "odometry_out_of_range": "odometry out of range", "odometry_jumps": "odometry jumps"}
 
 
 def skipped_text(counts: dict) -> str:

@@ -14,10 +14,41 @@ from __future__ import annotations
 
 import hashlib
 import os
+import tempfile
 from pathlib import Path
+
+import numba
+from numba.misc.appdirs import AppDirs
 
 STAMP = "kernel-sources.sha256"  # in the package's __pycache__
 CACHE_SUFFIXES = (".nbi", ".nbc")  # numba's index and compiled-code files
+
+
+def _writable(folder: Path) -> bool:
+    """Whether a file can be made in ``folder`` (made if missing): tried, not assumed."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryFile(dir=folder).close()
+        return True
+    except OSError:
+        return False
+
+
+def ensure_cache_folder(package: Path) -> Path | None:
+    """Where numba can cache the package's kernels. It caches beside the sources, or where
+    those cannot be written (an installed package) in the user's cache folder; where that
+    cannot be written either (a HOME that cannot be), every ``cache=True`` kernel would fail
+    at import. Then a folder of this user's in the temporary directory takes them. Returns
+    the folder chosen here (None: numba's own choice stands)."""
+    if numba.config.CACHE_DIR or _writable(package / "__pycache__"):
+        return None
+    if _writable(Path(AppDirs(appname="numba", appauthor=False).user_cache_dir)):
+        return None
+    fallback = Path(tempfile.gettempdir()) / f"swarmslam-numba-{os.getuid()}"
+    if _writable(fallback):
+        numba.config.CACHE_DIR = str(fallback)
+        return fallback
+    return None
 
 
 def source_digest(package: Path) -> str:
@@ -35,6 +66,7 @@ def refresh(package) -> bool:
     they were dropped. A package that cannot be written (an installed one, whose sources do
     not change) is left as it is."""
     package = Path(package)
+    ensure_cache_folder(package)
     digest = source_digest(package)
     stamp = package / "__pycache__" / STAMP
     try:

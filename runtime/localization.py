@@ -222,7 +222,7 @@ class Localizer:
             for b in range(1, back + 1):
                 k = (newest - b) % ring
                 step = inverse(self.recent_motions[(k + 1) % ring])
-                tracker.follow(self.recent.load(k, self._replayed), step)
+                tracker.follow(self.recent.load(k, self._replayed), step, measure=True)
             if tracker.poor >= self.config.localization.lost_scans:
                 lost.add(id(tracker))
             tracker.rewind(pose, motion)
@@ -234,7 +234,7 @@ class Localizer:
     def _confirm(self, scan, motion, stamp) -> None:
         lc = self.config.localization
         for k in range(self.n_candidates):  # a lone candidate has no twin to merge with
-            self.trackers[k].follow(scan, motion, gate=self.n_candidates == 1)
+            self.trackers[k].follow(scan, motion, gate=self.n_candidates == 1, measure=True)
         # a candidate that lost track is dropped; two that tracked into one place are one
         dropped = self._duplicates()
         self._keep(lambda t: t.poor < lc.lost_scans and id(t) not in dropped)
@@ -274,7 +274,9 @@ class Localizer:
                 self._keep(lambda t: id(t) in near)
         if self.n_candidates == 0:
             self.phase = SEARCHING
-        elif self.n_candidates == 1:
+        elif self.n_candidates == 1 and self.trackers[0].pinned:
+            # (a place seen only as a corridor is not a place: the candidate is followed on
+            # until a match pins it along the corridor too — a wrong map's corridor never does)
             self._commit(0)
 
     def _keep(self, test) -> None:

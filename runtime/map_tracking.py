@@ -25,6 +25,7 @@ import numpy as np
 from numba import njit
 
 from swarmslam.runtime.config import SlamConfig
+from swarmslam.runtime.degeneracy import Degeneracy
 from swarmslam.runtime.front_end import contradicts_odometry
 from swarmslam.runtime.node_scans import NodeScans
 from swarmslam.runtime.pose import between, compose
@@ -99,6 +100,11 @@ class SavedMap:
         return h.hexdigest()
 
 
+# A confirmation's pinned matches are judged by the front end's degeneracy ratio, or this
+# when that test is off (0): a corridor is not a place.
+MIN_PINNED_RATIO = 0.12
+
+
 class MapTracker:
     """One pose hypothesis tracked in a :class:`SavedMap` (see module doc)."""
 
@@ -118,11 +124,13 @@ class MapTracker:
         self.n_held = 0  # matches refused in a row
         self.unfixed = np.zeros(3)  # odometry's path since the last match kept (m, 0, 0)
         self.fit_sum, self.fits = 0.0, 0  # since start()
+        self.pinned = 0  # matches measured since start() that pinned every direction
         self.error = 0.0  # λ of the last match
 
     def start(self, pose) -> None:
         self._restart(pose, 0.0)
         self.fit_sum, self.fits = 0.0, 0
+        self.pinned = 0
 
     def rewind(self, pose, motion) -> None:
         """Back at ``pose``, the scan :meth:`start` began at, after following earlier scans
@@ -143,10 +151,13 @@ class MapTracker:
     def mean_fit(self) -> float:
         return self.fit_sum / self.fits if self.fits else 0.0
 
-    def follow(self, scan: PointScan, step=None, gate: bool = False) -> float:
+    def follow(self, scan: PointScan, step=None, gate: bool = False,
+               measure: bool = False) -> float:
         """Alg. 5 for ``scan`` from the pose moved by ``step`` (odometry's motion since the last
         scan; None: the last motion again); with ``gate``, a match odometry contradicts is
-        refused (:meth:`_gated`). Returns the fit (inlier share) of the pose taken."""
+        refused (:meth:`_gated`); with ``measure``, a match that pins every direction (not
+        degenerate, docs/method.md §6.1) is counted in ``pinned``. Returns the fit (inlier
+        share) of the pose taken."""
         c = self.config.front_end
         predicted = compose(self.pose, self.motion if step is None else step)
         self._reanchor(predicted)
@@ -159,6 +170,10 @@ class MapTracker:
             pose = self._gated(pose, guess, step)
         fit = self.matcher.inlier_fraction(scan, self.reference, pose,
                                            c.track_inlier_distance, c.track_inlier_slope)
+        if measure and fit >= c.min_track_inliers:
+            h = self.matcher.curvature(scan, self.reference, pose, c.curvature_step)
+            self.pinned += not Degeneracy(h, max(c.degeneracy_ratio, MIN_PINNED_RATIO),
+                                          c.degenerate_information).degenerate
         if fit < c.min_track_inliers:
             self.poor += 1
             pose = guess  # the prediction stands in, as in the front end
@@ -193,6 +208,13 @@ class MapTracker:
             return pose
         self.n_held += 1
         return guess
+
+    def anchored(self) -> int:
+        """The saved node the pose is tracked from, chosen now if none is yet (a pose
+        committed before it followed a scan)."""
+        if self.anchor < 0:
+            self._reanchor(self.pose)
+        return self.anchor
 
     def _reanchor(self, pose) -> None:
         lc = self.config.localization

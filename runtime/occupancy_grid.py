@@ -23,19 +23,46 @@ def integrate_scan(logodds, region, origin_x, origin_y, res, pose, pts, n, max_r
     many cells of ``region`` (nonzero cells of a uint8 grid) it made known for the first time."""
     h, w = logodds.shape
     newly_known = 0
+    if not (math.isfinite(pose[0]) and math.isfinite(pose[1]) and math.isfinite(pose[2])):
+        return 0
     c = math.cos(pose[2])
     s = math.sin(pose[2])
-    x0 = int(math.floor((pose[0] - origin_x) / res))
-    y0 = int(math.floor((pose[1] - origin_y) / res))
+    fx0 = (pose[0] - origin_x) / res
+    fy0 = (pose[1] - origin_y) / res
+    if not (0.0 <= fx0 < w and 0.0 <= fy0 < h):
+        return 0  # the sensor off the grid: no ray is traced (none would cross it reliably)
+    x0 = int(math.floor(fx0))
+    y0 = int(math.floor(fy0))
     for k in range(n):
         px = pts[k, 0]
         py = pts[k, 1]
+        if not (math.isfinite(px) and math.isfinite(py)):
+            continue
         if px * px + py * py > max_range * max_range:
             continue
         wx = pose[0] + c * px - s * py
         wy = pose[1] + s * px + c * py
-        x1 = int(math.floor((wx - origin_x) / res))
-        y1 = int(math.floor((wy - origin_y) / res))
+        # Every loop is bounded (docs/runtime.md §7): an end point off the grid is drawn as
+        # far as the grid's edge (the ray leaves it once and for all), never walked to.
+        gx = min(max((wx - origin_x) / res, -1.0), float(w))
+        gy = min(max((wy - origin_y) / res, -1.0), float(h))
+        if gx != (wx - origin_x) / res or gy != (wy - origin_y) / res:
+            # shorten the ray along its own direction to where it meets the clamped box
+            tx = 1.0
+            dxw = (wx - origin_x) / res - fx0
+            dyw = (wy - origin_y) / res - fy0
+            if dxw > 0.0:
+                tx = min(tx, (w - fx0) / dxw)
+            elif dxw < 0.0:
+                tx = min(tx, (fx0 + 1.0) / -dxw)
+            if dyw > 0.0:
+                tx = min(tx, (h - fy0) / dyw)
+            elif dyw < 0.0:
+                tx = min(tx, (fy0 + 1.0) / -dyw)
+            gx = fx0 + tx * dxw
+            gy = fy0 + tx * dyw
+        x1 = int(math.floor(gx))
+        y1 = int(math.floor(gy))
         # Bresenham from the sensor to the end point; the end cell is occupied.
         dx = abs(x1 - x0)
         dy = -abs(y1 - y0)
@@ -86,6 +113,9 @@ class OccupancyGrid:
     def covering(cls, points_xy, resolution: float, margin: float = 1.0, max_cells: int = 4096):
         """A grid over the bounding box of ``points_xy``, at most ``max_cells`` per side (the
         resolution is coarsened rather than the map cropped)."""
+        points_xy = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)
+        if not len(points_xy):  # nothing mapped yet: a grid of unknown cells at the origin
+            points_xy = np.zeros((1, 2))
         lo = np.min(points_xy, axis=0) - margin
         hi = np.max(points_xy, axis=0) + margin
         res = max(resolution, float(np.max(hi - lo)) / max_cells)

@@ -37,6 +37,25 @@ def ranges_to_points(ranges, angles, min_range, max_range, out):
     return n
 
 
+@njit(cache=True)
+def finite_points(points, count, out):
+    """Copy the finite ones among ``points[:count]`` into ``out`` (at most its capacity, in
+    order); return how many."""
+    n = 0
+    cap = out.shape[0]
+    for i in range(min(count, points.shape[0])):
+        x = points[i, 0]
+        y = points[i, 1]
+        if not (math.isfinite(x) and math.isfinite(y)):
+            continue
+        if n >= cap:
+            break
+        out[n, 0] = x
+        out[n, 1] = y
+        n += 1
+    return n
+
+
 class PointScan:
     """A scan's valid points in its sensor frame, in a buffer allocated once.
 

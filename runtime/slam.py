@@ -26,6 +26,7 @@ from swarmslam.runtime.node_scans import NodeScans
 from swarmslam.runtime.occupancy_grid import OccupancyGrid
 from swarmslam.runtime.pose import between
 from swarmslam.runtime.pose_graph import PoseGraph
+from swarmslam.runtime.resources import check_memory
 from swarmslam.runtime.scan import PointScan
 from swarmslam.runtime.step_result import StepResult
 
@@ -36,6 +37,7 @@ class GraphSlam:
         the first scan's frame is the map's; a simulator or a robot that knows where it starts
         passes that pose)."""
         self.config = c = config or SlamConfig()
+        check_memory(c)  # before any buffer is allocated
         self.graph = PoseGraph(c.capacity.max_nodes, c.capacity.max_edges)
         self.nodes = NodeScans(c.capacity.max_nodes, c.sensor.max_points)
         self.front_end = FrontEnd(c, self.graph, self.nodes, seed, initial_pose)
@@ -72,7 +74,7 @@ class GraphSlam:
         if self.locator.phase != TRACKING:
             return located  # no pose yet: nothing is added to the map
         tracker = self.locator.trackers[0]
-        anchor = tracker.anchor
+        anchor = tracker.anchored()  # (a pose committed before any scan was followed has none)
         rel = between(tracker.pose, self.graph.poses[anchor])
         joined = self.front_end.join(scan, odometry, stamp, anchor, rel)
         self.locator = None

@@ -15,6 +15,9 @@ class DataFormatError(ValueError):
         super().__init__(f"{path}:{line}: {field}: {problem}")
 
 
+# A text line longer than this is no record of ours (a 1,440-beam scan's is about 10 kB).
+MAX_LINE_BYTES = 2**20
+
 # What reading a damaged file raises: a truncated gzip stream (EOFError), a corrupted one
 # (zlib.error, gzip.BadGzipFile is an OSError), a device or permission failure (OSError).
 READ_ERRORS = (OSError, EOFError, zlib.error)
@@ -28,7 +31,18 @@ def records(path, opener=open, encoding: str = "utf-8", errors: str = "strict"):
     lineno = 0
     with opener(path, "rb") as f:  # a missing file raises as it is: it names the path
         try:
-            for lineno, raw in enumerate(f, start=1):
+            while True:
+                # (bounded: a line of junk is never read whole into memory)
+                raw = f.readline(MAX_LINE_BYTES + 1)
+                if not raw:
+                    break
+                lineno += 1
+                if len(raw) > MAX_LINE_BYTES:
+                    raise DataFormatError(path, lineno, "text", f"a line longer than "
+                                          f"{MAX_LINE_BYTES // 2**20} MiB (not a data file?)")
+                if b"\0" in raw:
+                    raise DataFormatError(path, lineno, "text", "a NUL byte: not plain text "
+                                          "(UTF-16, or a binary file?)")
                 try:
                     line = raw.decode(encoding, errors)
                 except UnicodeDecodeError as exc:

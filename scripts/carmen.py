@@ -19,8 +19,11 @@ scanner's own fixed value, taken from the log (:func:`flaser_no_return`).
 
 from __future__ import annotations
 
+import contextlib
 import gzip
+import io
 import math
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -36,6 +39,24 @@ FLASER_MAX_RANGE = 50.0
 # at least SENTINEL_MIN_COUNT times): Intel's 81.83 is 2.8% of them, ACES3's 50.0 0.8%.
 SENTINEL_SHARE = 1e-4
 SENTINEL_MIN_COUNT = 10
+
+
+# What a record may say. A stamp is seconds since 1970 or since the log began (at most the
+# year 2286): a record stamped beyond, or with a laser more than MAX_LASER_OFFSET from its
+# robot, is skipped and counted by its field. Odometry is judged where every source's is, in
+# the runtime's inbox (docs/runtime.md §7). A scanner's geometry beyond these is refused.
+MAX_STAMP = 1e10  # s
+MAX_LASER_OFFSET = 100.0  # m
+MAX_RANGE = 1e3  # m
+SKIPPED_EXAMPLES = 3  # the skipped records named in the warning
+
+
+class _Skip(Exception):
+    """A record with a value no robot or scanner produces: skipped and counted."""
+
+    def __init__(self, field: str, value: str):
+        super().__init__(field)
+        self.field, self.value = field, value
 
 
 class CarmenFormatError(DataFormatError):
@@ -66,6 +87,8 @@ class CarmenLog:
     path: str
     lasers: list[LaserRecord]
     odometry: list[OdometryRecord]
+    skipped: dict = field(default_factory=dict)  # records skipped, by the field that failed
+    skipped_examples: list = field(default_factory=list)  # "file:line: kind field: value"
 
     def scan_poses(self) -> np.ndarray:
         """The poses logged with the scans, ``(N, 3)``."""
@@ -77,10 +100,25 @@ def flaser_angles(n: int) -> np.ndarray:
     return -math.pi / 2 + step * np.arange(n)
 
 
-def _open(path: Path, mode: str = "rb"):
-    with open(path, "rb") as f:
-        magic = f.read(2)
-    return gzip.open(path, mode) if magic == b"\x1f\x8b" else open(path, mode)
+STDIN = "-"  # the log's path that reads standard input
+
+
+@contextlib.contextmanager
+def open_log(path):
+    """The log's bytes, gunzipped if they are gzip, from one opening of the file: a pipe, a
+    FIFO or standard input (``-``) gives its bytes once, and a separate look at the first
+    two would lose them."""
+    raw = sys.stdin.buffer if str(path) == STDIN else open(path, "rb")
+    try:
+        stream = raw if isinstance(raw, io.BufferedReader) else io.BufferedReader(raw)
+        if stream.peek(2)[:2] == b"\x1f\x8b":
+            with gzip.GzipFile(fileobj=stream, mode="rb") as unzipped:
+                yield unzipped
+        else:
+            yield stream
+    finally:
+        if raw is not sys.stdin.buffer:
+            raw.close()
 
 
 class _Fields:
@@ -107,9 +145,16 @@ class _Fields:
 
     def count(self, name):
         v = self.float(name)
-        if v < 0 or v != int(v):
+        if not math.isfinite(v) or v < 0 or v != int(v):
             raise self.error(name, f"not a count: {self.tokens[self.i - 1]!r}")
         return int(v)
+
+    def bounded(self, name, low: float, high: float):
+        """A number in ``[low, high]`` (finite): no robot or scanner reads beyond."""
+        v = self.float(name)
+        if not low <= v <= high:
+            raise self.error(name, f"{self.tokens[self.i - 1]!r} is outside [{low:g}, {high:g}]")
+        return v
 
     def floats(self, name, n):
         if self.i + n > len(self.tokens):
@@ -122,7 +167,8 @@ class _Fields:
         return out
 
     def pose(self, name):
-        return np.array([self.float(f"{name}.x"), self.float(f"{name}.y"), self.float(f"{name}.theta")])
+        return np.array([self.float(f"{name}.x"), self.float(f"{name}.y"),
+                         self.float(f"{name}.theta")])
 
     def timestamp(self):
         # ipc_timestamp ipc_hostname logger_timestamp: the timestamp is third from the end.
@@ -132,7 +178,10 @@ class _Fields:
                 f"expected 'ipc_timestamp ipc_hostname logger_timestamp' after the data, "
                 f"found {len(self.tokens) - self.i} trailing fields",
             )
-        return self.float("ipc_timestamp")
+        t = self.float("ipc_timestamp")
+        if not abs(t) <= MAX_STAMP:
+            raise _Skip("ipc_timestamp", self.tokens[self.i - 1])
+        return t
 
 
 def _flaser(f: _Fields, max_range: float) -> LaserRecord:
@@ -148,10 +197,10 @@ def _flaser(f: _Fields, max_range: float) -> LaserRecord:
 
 def _robotlaser1(f: _Fields) -> LaserRecord:
     f.float("laser_type")
-    start = f.float("start_angle")
-    fov = f.float("fov")
-    res = f.float("angular_res")
-    max_range = f.float("max_range")
+    start = f.bounded("start_angle", -2 * math.pi, 2 * math.pi)
+    fov = f.bounded("fov", 0.0, 2 * math.pi + 1e-6)
+    res = f.bounded("angular_res", 0.0, 2 * math.pi)
+    max_range = f.bounded("max_range", 0.0, MAX_RANGE)
     f.float("accuracy")
     f.float("remission_mode")
     n = f.count("num_readings")
@@ -162,14 +211,16 @@ def _robotlaser1(f: _Fields) -> LaserRecord:
     f.floats("remission", m)
     laser = f.pose("laser_pose")
     robot = f.pose("robot_pose")
+    offset = between(laser, robot)  # the laser's pose relative to the robot (Eq. 2)
+    if not (np.all(np.isfinite(offset)) and np.all(np.abs(offset[:2]) <= MAX_LASER_OFFSET)):
+        raise _Skip("laser_pose", f"{laser[0]!r} {laser[1]!r} {laser[2]!r}")
     for name in ("tv", "rv", "forward_safety", "side_safety", "turn_axis"):
         f.float(name)
     t = f.timestamp()
-    if not fov > 0:
-        raise f.error("fov", f"must be > 0, got {fov}")
+    for name, value in (("fov", fov), ("angular_res", res), ("max_range", max_range)):
+        if not value > 0:
+            raise f.error(name, f"must be > 0, got {value!r}")
     angles = start + res * np.arange(n)
-    # The laser's pose relative to the robot, from the two absolute poses (Eq. 2).
-    offset = between(laser, robot)
     return LaserRecord(t, ranges, angles, robot, robot.copy(), max_range, offset, line=f.line)
 
 
@@ -215,23 +266,32 @@ def read_carmen(path, max_range: float | None = None, sort: bool = True,
     ODOM stream at their own timestamps where the stream's times can be trusted
     (:func:`odometry_at_scans`)."""
     path = Path(path)
-    if not path.exists():
+    if str(path) != STDIN and not path.exists():
         raise FileNotFoundError(f"{path}: no such log file")
     lasers: list[LaserRecord] = []
     flaser: list[LaserRecord] = []  # the FLASER ones among them
     odometry: list[OdometryRecord] = []
-    for lineno, tokens in records(path, _open, "ascii", "replace"):
+    skipped: dict[str, int] = {}
+    examples: list[str] = []
+    for lineno, tokens in records(path, lambda p, _: open_log(p), "ascii", "replace"):
         kind = tokens[0]
         f = _Fields(path, lineno, tokens)
-        if kind == "FLASER":
-            flaser.append(_flaser(f, FLASER_MAX_RANGE if max_range is None else max_range))
-            lasers.append(flaser[-1])
-        elif kind == "ROBOTLASER1":
-            lasers.append(_robotlaser1(f))
-        elif kind == "ODOM":
-            odometry.append(_odom(f))
+        try:
+            if kind == "FLASER":
+                flaser.append(_flaser(f, FLASER_MAX_RANGE if max_range is None else max_range))
+                lasers.append(flaser[-1])
+            elif kind == "ROBOTLASER1":
+                lasers.append(_robotlaser1(f))
+            elif kind == "ODOM":
+                odometry.append(_odom(f))
+        except _Skip as skip:
+            skipped[skip.field] = skipped.get(skip.field, 0) + 1
+            if len(examples) < SKIPPED_EXAMPLES:
+                examples.append(f"{path}:{lineno}: {kind} {skip.field}: {skip.value}")
     if not lasers:
-        raise CarmenFormatError(path, 0, "FLASER/ROBOTLASER1", "the log has no laser scans")
+        raise CarmenFormatError(path, 0, "FLASER/ROBOTLASER1", "the log has no laser scans"
+                                + (f" it could use ({sum(skipped.values())} skipped: "
+                                   f"{'; '.join(examples)})" if skipped else ""))
     if flaser and max_range is None:
         no_return = flaser_no_return(np.concatenate([r.ranges for r in flaser]))
         for r in flaser:
@@ -241,7 +301,7 @@ def read_carmen(path, max_range: float | None = None, sort: bool = True,
         odometry.sort(key=lambda r: r.timestamp)
         if synchronise:
             odometry_at_scans(lasers, odometry)
-    return CarmenLog(str(path), lasers, odometry)
+    return CarmenLog(str(path), lasers, odometry, skipped, examples)
 
 
 # ODOM records farther apart than this (s) bracket no scan: the robot may have done anything.

@@ -155,6 +155,10 @@ def _config_show(args) -> int:
     return 0
 
 
+# A run's status starting so says its input could not be used: the command exits 1.
+UNUSABLE = ("no usable scan", "mostly unusable input")
+
+
 def _replay(args) -> int:
     from swarmslam.replay import replay
 
@@ -176,17 +180,23 @@ def _replay(args) -> int:
     if "eT" in m:
         print(f"relations: eT {m['eT']:.4f} ± {m['eT_std']:.4f} m, "
               f"eR {m['eR_deg']:.3f} ± {m['eR_std']:.3f} deg ({m['relations_used']} used)")
+    if m.get("records_skipped"):
+        print("skipped " + ", ".join(f"{n} records with a bad {field}"
+                                     for field, n in m["records_skipped"].items())
+              + " (counted in the report)")
     if skipped_text(m["runtime"]):
         print(skipped_text(m["runtime"]) + " (counted in the report)")
     if args.localize:
         if args.out:
             print(f"wrote {args.out}/trajectory.tum, localization.json (the session is unchanged)")
-        return 0
+        if m["status"] != "ok":
+            print(f"status: {m['status']}")
+        return 1 if m["status"].startswith(UNUSABLE) else 0
     if args.out:
         print(f"wrote {args.out}/map.pgm, map.yaml, map.png, trajectory.tum, graph.g2o, metrics.json")
     if m["status"] != "ok":
         print(f"status: {m['status']}")
-    return 0
+    return 1 if m["status"].startswith(UNUSABLE) else 0
 
 
 def _sweep(args) -> int:
@@ -288,12 +298,12 @@ def _lidar(args) -> int:
 
     with _sigterm_as_ctrl_c():
         changes = _session_changes(args)
-        run_live(args.port, args.model, args.mode, args.out, args.rate, args.seconds,
-                 args.resume,
-                 config=None if changes is not None else _config(args, f"rplidar-{args.model}"),
-                 localize=args.localize, watch=RunWatch.from_args(args), baud=args.baud,
-                 session_changes=changes)
-    return 0
+        summary = run_live(
+            args.port, args.model, args.mode, args.out, args.rate, args.seconds, args.resume,
+            config=None if changes is not None else _config(args, f"rplidar-{args.model}"),
+            localize=args.localize, watch=RunWatch.from_args(args), baud=args.baud,
+            session_changes=changes)
+    return 1 if summary["status"].startswith("no scans") else 0
 
 
 def _emulate(args) -> int:

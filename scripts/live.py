@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 from swarmslam.hardware.driver import RPLidar
+from swarmslam.hardware.models import MODELS
 from swarmslam.hardware.models import model as get_model
 from swarmslam.runtime.config import SlamConfig, override, preset
 from swarmslam.runtime.fixed_rate import SlamRuntime
@@ -82,10 +83,14 @@ def run_live(port: str, model: str = "a1", mode: str = "typical", out_dir="swarm
     echo(f"{port}: model 0x{info.model:02X} firmware {info.firmware_major}.{info.firmware_minor:02d} "
          f"hardware {info.hardware} serial {info.serial_hex}; health "
          f"{['ok', 'warning', 'error'][min(health[0], 2)]} (code {health[1]})")
+    mismatch = model_mismatch(info.major_model, model)
+    if mismatch:
+        echo(f"warning: {mismatch}")
     echo(f"warming up the compiled kernels: {runtime.warm_up():.1f} s")
     stop = stop or threading.Event()
     started = time.monotonic()
     last_print = [started, 0]
+    last_scan = [started, 0]  # when the scan count last grew, and the count then
 
     def on_tick(rt, result):
         now = time.monotonic()
@@ -97,6 +102,11 @@ def run_live(port: str, model: str = "a1", mode: str = "typical", out_dir="swarm
         if now - last_print[0] >= 1.0:
             r, s = rt.report(), lidar.report()
             rate = (r["scans"] - last_print[1]) / (now - last_print[0])
+            if r["scans"] > last_scan[1]:
+                last_scan[0], last_scan[1] = now, r["scans"]
+            silent = now - last_scan[0]
+            status = rt.status if silent < NO_SCANS_SECONDS else \
+                f"no scans for {silent:.0f} s (scanner gone, or another model?)"
             pose = rt.pose()
             graph = (f"saved {r['saved_nodes']:4d} lost {r['lost']:3d}" if rt.localizing else
                      f"nodes {r['nodes']:4d} loops {r['loops_accepted']:3d}")
@@ -104,7 +114,7 @@ def run_live(port: str, model: str = "a1", mode: str = "typical", out_dir="swarm
                  f"{graph}  p99 "
                  f"{r['latency_ms_p99']:5.1f} ms  misses {r['deadline_misses']}  stale "
                  f"{r['stale_scans']}  checksum {s['checksum_errors']} resync {s['resyncs']} "
-                 f"timeouts {s['timeouts']} reconnects {s['reconnects']}  {rt.status}"
+                 f"timeouts {s['timeouts']} reconnects {s['reconnects']}  {status}"
                  + (f"  {rt.inbox.skipped()}" if rt.inbox.skipped() else ""))
             last_print[0], last_print[1] = now, r["scans"]
 
@@ -126,18 +136,36 @@ def save_outputs(runtime: SlamRuntime, out: Path, scanner: dict, echo=print) -> 
     if runtime.autosave is not None:
         runtime.autosave.wait()
     runtime.drain()
-    summary = {"runtime": runtime.report(), "scanner": scanner}
+    report = runtime.report()
+    status = runtime.status if report["scans"] else NO_SCANS_STATUS
+    summary = {"status": status, "runtime": report, "scanner": scanner}
     with output_set(out) as stage:
         if runtime.localizing:  # the saved map is unchanged: only where the robot went
             write_tum(stage / "trajectory.tum", *runtime.trajectory())
             write_json_atomic(stage / "summary.json", summary)
             wrote = "trajectory.tum summary.json"
-        else:
-            wrote = "summary.json"
-            if runtime.slam.n_nodes:
-                write_results(runtime.slam, stage)
-                runtime.save(stage / "session.npz")
-                wrote = "map.pgm map.yaml map.png trajectory.tum graph.g2o session.npz " + wrote
+        else:  # the whole set, even of nothing (an empty map): never an earlier run's beside
+            write_results(runtime.slam, stage)
+            runtime.save(stage / "session.npz")
             write_json_atomic(stage / "summary.json", summary)
+            wrote = "map.pgm map.yaml map.png trajectory.tum graph.g2o session.npz summary.json"
     echo(f"wrote {out}/: {wrote}")
+    if status != "ok":
+        echo(f"status: {status}")
     return summary
+
+
+NO_SCANS_SECONDS = 5.0  # a scanner silent this long is reported so on the status line
+NO_SCANS_STATUS = "no scans received: nothing mapped (is the scanner on the port the model given?)"
+
+
+def model_mismatch(major: int, asked: str) -> str:
+    """What to warn of when the scanner on the port is not the model asked for ('' if it
+    is): its scans would not decode."""
+    want = get_model(asked)
+    if major == want.major_id:
+        return ""
+    found = next((m.name.upper() for m in MODELS.values() if m.major_id == major),
+                 f"of family {major}")
+    return (f"the scanner reports itself an {found}, not the {want.name.upper()} asked for "
+            f"(--model {want.name}): its scans may not decode")

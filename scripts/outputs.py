@@ -4,15 +4,18 @@ map_server, and PNG), the trajectory of every scan (TUM, for ``evo``) and the po
 
 A run's files are one *output set*: :func:`output_set` writes them into a staging folder beside
 the output folder and swaps it in whole, so an interrupted write (SIGTERM, Ctrl-C, a full disk)
-leaves the previous set as it was — never half new, half old — and a stale staging folder
-(a killed writer) is cleaned up at the next run.
+leaves the previous set as it was — never half new, half old, nor an old file of the previous
+set beside the new ones — and a stale staging folder (a killed writer) is cleaned up at the
+next run.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import shutil
+import stat
 import time
 from pathlib import Path
 
@@ -33,8 +36,19 @@ def write_results(slam: GraphSlam, out_dir) -> None:
     write_g2o(out / "graph.g2o", slam.graph)
 
 
+MANIFEST = ".swarmslam-outputs"  # in an output folder: the names its last set wrote
+
+
+def _target(out_dir) -> Path:
+    """The folder a set goes to, absolute; a symbolic link is followed (the link stays, its
+    target is written)."""
+    return Path(out_dir).resolve()
+
+
 def _staging(out: Path, kind: str, pid: int) -> Path:
-    return out.parent / f".{out.name}.{kind}-{pid}"
+    # a short name whatever the output folder's (a 250-character one must not fail at the end)
+    tag = hashlib.sha1(out.name.encode("utf-8", "surrogateescape")).hexdigest()[:12]
+    return out.parent / f".swarmslam-{tag}.{kind}-{pid}"
 
 
 def _alive(pid: int) -> bool:
@@ -50,12 +64,13 @@ def _alive(pid: int) -> bool:
 def clean_stale(out_dir) -> list[Path]:
     """Remove what killed writers left beside ``out_dir`` (their staging folders, and temp
     files in it), putting back a previous set a swap was interrupted in. Returns what went."""
-    out = Path(out_dir)
+    out = _target(out_dir)
     gone: list[Path] = []
     if not out.parent.is_dir():
         return gone
-    for entry in out.parent.glob(f".{out.name}.*-*"):
-        kind, _, pid = entry.name[len(out.name) + 2:].rpartition("-")
+    prefix = _staging(out, "", 0).name[: -len(".-0")]
+    for entry in out.parent.glob(f"{prefix}.*-*"):
+        kind, _, pid = entry.name[len(prefix) + 1:].rpartition("-")
         if kind not in ("staging", "old") or not pid.isdigit() or _alive(int(pid)):
             continue
         if kind == "old" and not out.exists():
@@ -73,31 +88,85 @@ def clean_stale(out_dir) -> list[Path]:
     return gone
 
 
+def _previous_set(out: Path) -> set[str]:
+    """The names the last set written into ``out`` made (none known: none)."""
+    with contextlib.suppress(OSError):
+        return set((out / MANIFEST).read_text(encoding="utf-8").split("\n")) - {""}
+    return set()
+
+
+def _in_place(out: Path) -> bool:
+    """``out`` holds this process's working folder (``--out .``): it cannot be swapped (the
+    process, and the shell it came from, would be left in a deleted folder)."""
+    cwd = Path.cwd().resolve()
+    return out == cwd or out in cwd.parents
+
+
 @contextlib.contextmanager
 def output_set(out_dir):
     """``with output_set(out) as stage:`` write every file into ``stage``; on leaving the
-    block the set replaces ``out`` whole (files already in ``out`` that the set does not
-    rewrite are kept, as hard links). On an exception the staging folder is dropped and
-    ``out`` stays as it was."""
-    out = Path(out_dir)
+    block the set replaces ``out``'s previous set whole: what that set wrote and this one
+    does not is gone (no old map beside a new trajectory), the user's own files stay. The new
+    folder keeps the old one's group and permissions. On an exception the staging folder is
+    dropped and ``out`` stays as it was. A symbolic link is followed; ``out`` holding the
+    working folder is written file by file instead of swapped."""
+    out = _target(out_dir)
     clean_stale(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    out.mkdir(parents=True, exist_ok=True)
     stage = _staging(out, "staging", os.getpid())
     shutil.rmtree(stage, ignore_errors=True)
-    if out.is_dir():  # start from the previous set: what is rewritten replaces a link
-        shutil.copytree(out, stage, copy_function=_link_or_copy, symlinks=True)
-    else:
-        stage.mkdir()
+    stage.mkdir()
+    previous = _previous_set(out)
+    # (a file being written into ``out`` meanwhile — a recording — is carried over too, as a
+    # hard link its writer's rename then finds)
+    keep = [p for p in out.iterdir() if p.name not in previous and p.name != MANIFEST]
     try:
+        _copy_folder_mode(out, stage)
         yield stage
+        written = sorted(p.name for p in stage.iterdir())
+        (stage / MANIFEST).write_text("\n".join(written) + "\n", encoding="utf-8")
+        if _in_place(out):
+            _install_file_by_file(stage, out, previous - set(written))
+            return
+        keep += [p for p in out.iterdir() if p.name.endswith(".tmp") and p not in keep]
+        for path in keep:  # the user's own files, as hard links (free)
+            target = stage / path.name
+            if path.is_dir() and not path.is_symlink():
+                shutil.copytree(path, target, copy_function=_link_or_copy, symlinks=True)
+            elif not target.exists():
+                _link_or_copy(path, target)
     except BaseException:
         shutil.rmtree(stage, ignore_errors=True)
         raise
     old = _staging(out, "old", os.getpid())
-    if out.exists():
-        os.replace(out, old)
+    os.replace(out, old)
     os.replace(stage, out)
     shutil.rmtree(old, ignore_errors=True)
+
+
+def _install_file_by_file(stage: Path, out: Path, dropped) -> None:
+    """Each file of ``stage`` renamed into ``out`` (each rename atomic), then what the last
+    set wrote and this one did not removed."""
+    try:
+        for path in stage.iterdir():
+            if path.name != MANIFEST:
+                os.replace(path, out / path.name)
+        for name in dropped:
+            with contextlib.suppress(FileNotFoundError):
+                (out / name).unlink()
+        os.replace(stage / MANIFEST, out / MANIFEST)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
+def _copy_folder_mode(source: Path, target: Path) -> None:
+    """``target`` gets ``source``'s permissions and group (a shared, group-owned output
+    folder stays one)."""
+    st = source.stat()
+    os.chmod(target, stat.S_IMODE(st.st_mode))
+    if target.stat().st_gid != st.st_gid:
+        with contextlib.suppress(PermissionError):
+            os.chown(target, -1, st.st_gid)
 
 
 def _link_or_copy(source, target) -> None:
@@ -109,10 +178,22 @@ def _link_or_copy(source, target) -> None:
 
 
 def check_writable(out_dir) -> None:
-    """Refuse an output folder that cannot be written, before any long work."""
-    out = Path(out_dir)
+    """Refuse an output folder that cannot be written, before any long work: not a folder,
+    a name the file system cannot hold, or no right to write it (or, to swap it in whole,
+    the folder it is in)."""
+    given = Path(out_dir)
+    absolute = Path(os.path.abspath(given))
+    existing = next((p for p in absolute.parents if p.exists()), Path("/"))
+    limit = os.pathconf(existing, "PC_NAME_MAX") if hasattr(os, "pathconf") else 255
+    too_long = [part for part in absolute.relative_to(existing).parts
+                if len(part.encode("utf-8", "surrogateescape")) > limit]
+    if too_long:
+        raise ValueError(f"--out {given}: the name {too_long[0][:40]}... is longer than the "
+                         f"file system allows ({limit} bytes)")
+    out = _target(out_dir)
     if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out}: exists and is not a folder")
-    parent = out if out.is_dir() else next((p for p in out.parents if p.exists()), Path("."))
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise ValueError(f"--out {out}: {parent} is not writable")
+        raise ValueError(f"--out {given}: exists and is not a folder")
+    existing = next((p for p in (out, *out.parents) if p.exists()), Path("/"))
+    needs = existing if existing != out or _in_place(out) else out.parent
+    if not os.access(needs, os.W_OK | os.X_OK):
+        raise ValueError(f"--out {given}: {needs} is not writable")

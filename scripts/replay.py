@@ -7,6 +7,7 @@ in it with ``--localize``, extend it with ``--resume``) and ``metrics.json``.
 
 from __future__ import annotations
 
+import sys
 import time
 
 import numpy as np
@@ -58,6 +59,34 @@ def scored(stamps, poses, relations) -> dict:
     except ValueError as exc:
         return {"relations_used": 0, "relations_total": len(relations),
                 "relations_note": str(exc)}
+
+
+def input_report(log, runtime: SlamRuntime) -> dict:
+    """What of the log could not be used: records the reader skipped (by field) and scans
+    the runtime refused, and the share of all records they make."""
+    skipped = sum(log.skipped.values())
+    refused = runtime.inbox.empty + runtime.inbox.bad_stamps
+    total = len(log.lasers) + skipped
+    return {"records_skipped": dict(log.skipped), "scans_refused": refused,
+            "unusable_share": (skipped + refused) / total if total else 1.0}
+
+
+MOSTLY_UNUSABLE = 0.5  # a run whose records were more than this share unusable is not ok
+
+
+def run_status(status: str, log, runtime: SlamRuntime) -> str:
+    """The runtime's status, preceded by what makes the run not ok: most of its input
+    unusable, or no scan used at all."""
+    report = input_report(log, runtime)
+    said = []
+    if report["scans_refused"] == len(log.lasers):
+        said.append("no usable scan: every scan was refused")
+    elif report["unusable_share"] > MOSTLY_UNUSABLE:
+        said.append(f"mostly unusable input: {report['unusable_share']:.0%} of the records "
+                    f"skipped or refused")
+    if status != "ok":
+        said.append(status)
+    return "; ".join(said) if said else "ok"
 
 
 def log_seconds(lasers) -> float:
@@ -125,6 +154,10 @@ def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, s
     if out_dir is not None:
         check_writable(out_dir)  # before the run, not after it
     log = read_carmen(log_path)
+    if log.skipped:
+        print(f"{log_path}: skipped {sum(log.skipped.values())} records ("
+              + ", ".join(f"{n} with a bad {f}" for f, n in log.skipped.items()) + "): "
+              + "; ".join(log.skipped_examples), file=sys.stderr)
     relations = read_relations(relations_path) if relations_path else None
     lasers = log.lasers[start : start + limit if limit else None]
     if not lasers:
@@ -167,11 +200,12 @@ def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, s
         "latency_ms_p99": float(1e3 * np.percentile(latencies, 99)),
     }
     if runtime.localizing:
-        return localization_results(runtime, log_path, localize, lasers, odometry, timing,
+        return localization_results(runtime, log, log_path, localize, lasers, odometry, timing,
                                     relations, out_dir), runtime
     stamps, poses = slam.trajectory()
     metrics = {
         "log": str(log_path),
+        **input_report(log, runtime),
         "optimizer": config.matcher.swarm.optimizer,
         "odometry": bool(odometry),
         "scans": len(lasers),
@@ -184,7 +218,7 @@ def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, s
         "matches_degenerate": slam.front_end.degenerate_matches,
         "odometry_scale": slam.front_end.odometry_scale.scale,  # learnt (1: not, or within doubt)
         **timing,
-        "status": runtime.status,
+        "status": run_status(runtime.status, log, runtime),
         "runtime": runtime.report(),
     }
     if relations is not None:
@@ -197,14 +231,15 @@ def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, s
     return metrics, runtime
 
 
-def localization_results(runtime: SlamRuntime, log_path, session_path, lasers, odometry,
+def localization_results(runtime: SlamRuntime, log, log_path, session_path, lasers, odometry,
                          timing: dict, relations, out_dir) -> dict:
     """A localization replay's metrics, and its outputs: the trajectory (TUM) and
     ``localization.json``."""
     stamps, poses = runtime.trajectory()
     metrics = {"log": str(log_path), "session": str(session_path), "odometry": bool(odometry),
                "scans": len(lasers), "scans_with_pose": len(stamps), **timing,
-               "status": runtime.status, "runtime": runtime.report(),
+               **input_report(log, runtime), "status": run_status(runtime.status, log, runtime),
+               "runtime": runtime.report(),
                "saved_map_sha256": runtime.slam.saved.digest()}
     if relations is not None:
         metrics.update(scored(stamps, poses, relations))

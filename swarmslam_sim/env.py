@@ -21,6 +21,10 @@ from swarmslam_sim.mapping import crop_probability, wall_clearance, world_grid
 from swarmslam_sim.physics import SUBSTEP, Robot, build_space
 from swarmslam_sim.prior_map import session_map, surveyed_map
 from swarmslam_sim.render import Renderer
+from swarmslam_sim.world import distance_to_walls
+
+MAX_HEADING = 1e4  # rad: a start heading wound further has lost its precision
+MAX_ANGULAR = 4 * math.pi  # rad/s: two turns a second
 
 
 class SwarmSlamEnv(gym.Env):
@@ -110,6 +114,11 @@ class SwarmSlamEnv(gym.Env):
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
         if crop != int(crop):
             raise ValueError(f"crop is a number of cells, got {crop!r}")
+        if max_linear * SUBSTEP >= robot_radius:  # one physics step would pass a wall
+            raise ValueError(f"max_linear must be < robot_radius / {SUBSTEP:g} s = "
+                             f"{robot_radius / SUBSTEP:g} m/s, got {max_linear!r}")
+        if max_angular > MAX_ANGULAR:
+            raise ValueError(f"max_angular must be ≤ {MAX_ANGULAR:g} rad/s, got {max_angular!r}")
         for name, value in (("reward_per_m2", reward_per_m2),
                             ("collision_penalty", collision_penalty)):
             if not (isinstance(value, numbers.Real) and math.isfinite(value)):
@@ -172,7 +181,7 @@ class SwarmSlamEnv(gym.Env):
         if self.kidnapped:
             start = self._random_start(rng)
         if options and options.get("start") is not None:
-            start = np.array(options["start"], dtype=np.float64).reshape(3)
+            start = self._checked_start(options["start"])
         self.space = build_space(self.world)
         self.robot = Robot(self.space, start, self.robot_radius)
         told = None if self.kidnapped else start
@@ -311,6 +320,28 @@ class SwarmSlamEnv(gym.Env):
         """The SLAM has a pose (always, but in localization mode before it confirmed one)."""
         return self.runtime is None or not self.runtime.localizing or \
             self.runtime.slam.phase == TRACKING
+
+    def _checked_start(self, start) -> np.ndarray:
+        """``options["start"]`` as a pose the robot can stand at: three finite numbers, inside
+        the world's bounds, at least its radius from every wall; the heading wrapped (one
+        wound beyond MAX_HEADING has lost its precision)."""
+        try:
+            pose = np.array(start, dtype=np.float64).reshape(3)
+        except (TypeError, ValueError):
+            raise ValueError(f"options['start'] must be (x, y, heading), got {start!r}") from None
+        if not np.all(np.isfinite(pose)) or abs(pose[2]) > MAX_HEADING:
+            raise ValueError(f"options['start'] must be finite, the heading within "
+                             f"±{MAX_HEADING:g} rad, got {tuple(pose)}")
+        x0, y0, x1, y1 = self.world.bounds
+        if not (x0 < pose[0] < x1 and y0 < pose[1] < y1):
+            raise ValueError(f"options['start'] {tuple(pose[:2])} lies outside the world's "
+                             f"bounds {self.world.bounds}")
+        clearance = distance_to_walls(self.world.segments, pose[0], pose[1])
+        if clearance < self.robot_radius:
+            raise ValueError(f"options['start'] {tuple(pose[:2])} lies {clearance:.2f} m from a "
+                             f"wall, within the robot's radius {self.robot_radius:g} m")
+        pose[2] = math.remainder(pose[2], 2 * math.pi)
+        return pose
 
     def _random_start(self, rng) -> np.ndarray:
         """A reachable pose at least two robot radii from any wall, any heading."""

@@ -357,7 +357,9 @@ def mixed_pixels(scanner: Lidar, pose, angles, r, share: float, fx: np.random.Ge
     left = scanner.cast_angles(pose, angles + BEAM_WIDTH / 2, np.empty(len(angles)))
     right = scanner.cast_angles(pose, angles - BEAM_WIDTH / 2, np.empty(len(angles)))
     near, far = np.minimum(left, right), np.maximum(left, right)
-    edge = np.isfinite(far) & (far - near >= MIXED_EDGE) & (fx.random(len(angles)) < share)
+    with np.errstate(invalid="ignore"):  # (both sides without a return: inf - inf)
+        step = far - near
+    edge = np.isfinite(far) & (step >= MIXED_EDGE) & (fx.random(len(angles)) < share)
     r[edge] = near[edge] + fx.random(int(edge.sum())) * (far[edge] - near[edge])
 
 

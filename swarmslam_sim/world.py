@@ -69,6 +69,18 @@ class World:
         return self.bounds[2] - self.bounds[0], self.bounds[3] - self.bounds[1]
 
 
+def distance_to_walls(segments, x: float, y: float) -> float:
+    """The distance (m) from ``(x, y)`` to the nearest wall segment (inf with none)."""
+    seg = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
+    if not len(seg):
+        return math.inf
+    a, d = seg[:, :2], seg[:, 2:] - seg[:, :2]
+    length2 = np.maximum(np.sum(d * d, axis=1), 1e-18)
+    t = np.clip(((x - a[:, 0]) * d[:, 0] + (y - a[:, 1]) * d[:, 1]) / length2, 0.0, 1.0)
+    near = a + t[:, None] * d
+    return float(np.min(np.hypot(near[:, 0] - x, near[:, 1] - y)))
+
+
 def box_segments(cx, cy, width, height, angle) -> list[tuple[float, float, float, float]]:
     c, s = math.cos(angle), math.sin(angle)
     corners = [(-width / 2, -height / 2), (width / 2, -height / 2),

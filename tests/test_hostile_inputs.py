@@ -21,7 +21,7 @@ from swarmslam.runtime.text_records import DataFormatError
 from swarmslam.runtime.warm_up import loop_path, room_world, scan_at
 from swarmslam.carmen import flaser_angles, read_carmen
 from swarmslam.cli import main
-from swarmslam.outputs import clean_stale, output_set
+from swarmslam.outputs import _staging, clean_stale, output_set
 
 
 def strict_json(path):
@@ -70,7 +70,7 @@ def replay_metrics(tmp_path, lines, name):
     ("no-return", dict(ranges="81.83"), "empty_scans"),  # every beam at max: open space
     ("inf-odometry", dict(odometry="inf"), "odometry_non_finite"),
     ("nan-odometry", dict(odometry="nan"), None),  # the reader refuses NaN, naming the line
-    ("inf-stamp", dict(stamp="inf"), "bad_stamp_scans"),
+    ("inf-stamp", dict(stamp="inf"), "ipc_timestamp"),  # skipped by the reader, by field
 ])
 def test_a_bad_record_is_skipped_and_counted(tmp_path, capsys, name, change, count):
     lines = log_lines()
@@ -82,7 +82,8 @@ def test_a_bad_record_is_skipped_and_counted(tmp_path, capsys, name, change, cou
         assert "bad.clf:21: odom.x: NaN" in capsys.readouterr().err
         return
     m, out = replay_metrics(tmp_path, lines, name)
-    assert m["runtime"][count] == 1 and m["status"] == "ok"
+    counted = m["records_skipped"] if count == "ipc_timestamp" else m["runtime"]
+    assert counted[count] == 1 and m["status"] == "ok"
     assert m["real_time_factor"] is None or np.isfinite(m["real_time_factor"])
     assert "skipped 1" in capsys.readouterr().out
     assert (out / "map.pgm").exists() and (out / "session.npz").exists()
@@ -91,8 +92,11 @@ def test_a_bad_record_is_skipped_and_counted(tmp_path, capsys, name, change, cou
 def test_odometry_spikes_and_jumps_are_dropped_not_absorbed(tmp_path):
     clean, _ = replay_metrics(tmp_path, log_lines(), "clean")
     spike = log_lines()
-    spike[20] = edit(spike[20], odometry="1e300")  # one line: that reading and the next jump
+    spike[20] = edit(spike[20], odometry="1e300")  # no robot's: dropped, the next one fine
     m, out = replay_metrics(tmp_path, spike, "spike")
+    assert m["runtime"]["odometry_out_of_range"] == 1 and m["runtime"]["odometry_jumps"] == 0
+    spike[20] = edit(spike[20], odometry="900.0")  # a jump: it and the one back are dropped
+    m, out = replay_metrics(tmp_path, spike, "jump")
     assert m["runtime"]["odometry_jumps"] == 2
     rebased = log_lines()  # odometry re-based by 10 km halfway: followed, never absorbed
     for k in range(20, len(rebased)):
@@ -251,16 +255,15 @@ def test_an_interrupted_output_set_leaves_the_previous_one_whole(tmp_path):
     (out / "notes.txt").write_text("the user's")
     with pytest.raises(KeyboardInterrupt):
         with output_set(out) as stage:
-            (stage / "map.pgm").unlink()
             (stage / "map.pgm").write_text("new map")
             raise KeyboardInterrupt  # SIGTERM / Ctrl-C mid-write
     assert (out / "map.pgm").read_text() == "old map"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no staging left
     with output_set(out) as stage:
-        (stage / "map.pgm").unlink()
         (stage / "map.pgm").write_text("new map")
     assert (out / "map.pgm").read_text() == "new map"
-    assert (out / "trajectory.tum").read_text() == "old trajectory"  # kept, not rewritten
+    # the previous set's trajectory is not left beside the new map; the user's file stays
+    assert not (out / "trajectory.tum").exists()
     assert (out / "notes.txt").read_text() == "the user's"
 
 
@@ -268,10 +271,10 @@ def test_what_a_killed_writer_left_is_cleaned_and_a_cut_swap_restored(tmp_path):
     out = tmp_path / "out"
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
                           capture_output=True, text=True).stdout.strip()
-    staging = tmp_path / f".out.staging-{dead}"
+    staging = _staging(out, "staging", int(dead))
     staging.mkdir()
     (staging / "map.pgm").write_text("half")
-    previous = tmp_path / f".out.old-{dead}"  # killed between the swap's two renames
+    previous = _staging(out, "old", int(dead))  # killed between the swap's two renames
     previous.mkdir()
     (previous / "map.pgm").write_text("complete")
     clean_stale(out)

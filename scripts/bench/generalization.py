@@ -228,14 +228,9 @@ def bench_generalization(cases=CASES, json_path=None, work=None, config=None, fl
         folder.mkdir(parents=True, exist_ok=True)
         for case in cases:
             results["cases"].append(run_case(case, folder, config, floor, echo))
-    runs = results["cases"]
-    results["summary"] = {
-        "worst_loop_precision": min(r["loop_precision"] for r in runs),
-        "mean_loop_recall": float(np.mean([r["loop_recall"] for r in runs])),
-        "worst_eT_over_floor": max(r["eT_over_floor"] for r in runs) if floor else None,
-        "mean_ate_rmse_m": float(np.mean([r["ate_rmse_m"] for r in runs])),
-    }
-    echo(format_summary(results["summary"]))
+    results["summary"] = summarise_cases(results["cases"], floor)
+    for group, summary in results["summary"].items():
+        echo(f"{group}: {format_summary(summary)}")
     if plots:
         names = [r["case"] for r in runs]
         errors = {"eT (m)": dict(zip(names, (r["eT"] for r in runs))),
@@ -249,6 +244,20 @@ def bench_generalization(cases=CASES, json_path=None, work=None, config=None, fl
     if json_path:
         save_results(json_path, results)
     return results
+
+
+def summarise_cases(runs, floor: bool) -> dict:
+    """The suite's figures per group: the cases as simulated so far (``plain``) and those
+    with a real robot's effects (``robot``), which the plain ones cannot show."""
+    groups = {"plain": [r for r in runs if r.get("effects", "none") == "none"],
+              "robot": [r for r in runs if r.get("effects", "none") != "none"]}
+    return {name: {
+        "cases": len(group),
+        "worst_loop_precision": min(r["loop_precision"] for r in group),
+        "mean_loop_recall": float(np.mean([r["loop_recall"] for r in group])),
+        "worst_eT_over_floor": max(r["eT_over_floor"] for r in group) if floor else None,
+        "mean_ate_rmse_m": float(np.mean([r["ate_rmse_m"] for r in group])),
+    } for name, group in groups.items() if group}
 
 
 def format_header(floor: bool) -> str:
