@@ -1,4 +1,4 @@
-"""The embeddable SLAM core (README, "Layout"). Importing it first makes sure no compiled
+"""The embeddable SLAM core (README, "Layout"; docs/runtime.md). Importing it first makes sure no compiled
 kernel cached from older sources runs (:mod:`swarmslam.runtime.kernel_cache`)."""
 
 from pathlib import Path

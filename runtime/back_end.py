@@ -295,8 +295,7 @@ class BackEnd:
             # An ordinary search's guess is the graph's own estimate: along the axis the edge
             # repeats it rather than measuring it, and would pin the drift it holds (Intel's
             # first corridor, 0.87 m); the floor frees it (docs/method.md §5, step 3).
-            floor = c.degenerate_share == "floor" and not proposal
-            share = c.degenerate_information if floor else None
+            share = None if proposal else c.degenerate_information
             self.z_info[:] = degeneracy.information(self.z_info, share)
         if proposal:
             return pose  # the wide search's own tests stand (runtime/wide_loop_search.py)

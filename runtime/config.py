@@ -34,7 +34,6 @@ else:  # pragma: no cover - Python 3.10
 OPTIMIZERS = ("pso", "abc", "fa")
 KERNEL_NAMES = ("paper", "cauchy")  # Eq. 14 as printed; the per-point robust kernel
 INFORMATION_MODES = ("fixed", "paper")
-DEGENERATE_SHARES = ("curvature", "floor")
 SCHEDULES = ("budgeted", "lockstep")
 SOLVERS = ("ldl", "superlu")
 
@@ -153,7 +152,7 @@ class SwarmConfig(Section):
 
 def _budgeted_swarm() -> SwarmConfig:
     # A fixed-rate tick needs a bound on the global stage: 3,000 evaluations reached every
-    # target of the matcher benchmark (README).
+    # target of the matcher benchmark (docs/benchmarks.md).
     return SwarmConfig(max_evaluations=3000)
 
 
@@ -315,42 +314,6 @@ class FrontEndConfig(Section):
     spread_corrections: bool = _setting(
         True, "a scan between two nodes takes the graph's correction of both, shared by time "
         "(false: its tracking node's alone)")
-    odometry_noise_window: int = _setting(
-        0, "node steps (of each kind: straight, turning left, right) whose heading residual "
-        "between match and odometry estimates odometry's heading bias and noise, with which "
-        "each edge's heading is fused with odometry's (docs/method.md §6.1; 200 with a robot "
-        "whose odometry is known to be good); 0: off, the edge is the match alone", ge=0)
-    odometry_noise_min_steps: int = _setting(
-        20, "node steps of a kind seen before odometry's heading is fused on steps of that kind",
-        ge=1)
-    odometry_turn_split: float = _setting(
-        0.25, "rad: node steps turning more than this (left, right) estimate odometry's heading "
-        "noise and bias apart from straight ones (odometry errs most, one-sidedly, in turns)",
-        gt=0)
-    odometry_sigma_floor: float = _setting(
-        0.001, "rad: odometry's heading σ over a node step is never taken below this", gt=0)
-    match_heading_sigma: tuple[float, float] = _setting(
-        (0.0035, 0.014), "rad: the match's own heading σ over a node step (straight, turning): "
-        "the share of the match-odometry disagreement that is not odometry's; the edge's heading "
-        "information (sigma_rotation) stands for it when odometry's is weighed against it", gt=0)
-    odometry_scale_window: int = _setting(
-        0, "straight node steps whose match pinned every direction that estimate odometry's "
-        "distance scale (their median matched over counted translation), applied where a match "
-        "is degenerate (docs/method.md §6.1; runtime/odometry_scale.py; 100 measured); 0: off",
-        ge=0)
-    odometry_scale_min_steps: int = _setting(
-        5, "such steps seen before the scale is used", ge=1)
-    odometry_scale_min_step: float = _setting(
-        0.2, "m: shorter node steps do not estimate the scale", ge=0)
-    odometry_scale_max_turn: float = _setting(
-        0.02, "rad: node steps turning more do not estimate the scale (a scanner off the "
-        "wheels' axis moves farther in a turn)", ge=0)
-    odometry_scale_dead_zone: float = _setting(
-        0.0075, "the scale is taken as 1 while within this of it: the matches' own scale "
-        "wanders from place to place by about ±0.5% (the simulator's corridors)", ge=0)
-    odometry_scale_confidence: float = _setting(
-        2.0, "... or within this many standard errors of the median (1.4826 MAD / √n) beyond "
-        "the dead zone: a few steps do not move it", ge=0)
 
 
 @dataclass(frozen=True)
@@ -369,9 +332,6 @@ class LoopClosureConfig(Section):
     chi2_gate: float = _setting(7.81, "χ²₃ at 95% on the new edge's own error after optimising",
                                 gt=0)
     total_gate: float = _setting(16.27, "χ²₃ at 99.9% on the rise of the total error", gt=0)
-    wide_total_gate: float | None = _setting(
-        None, "the rise of the total error a wide search's proposal may cause (none: its own "
-        "error alone judges it; the rise measures the drift it repairs)", gt=0)
     min_inliers: float = _setting(0.8, "share of points on the submap's surfaces that accepts a "
                                   "loop match (strict: a wrong loop bends the map)", ge=0, le=1)
     min_overlap: float = _setting(
@@ -392,24 +352,16 @@ class LoopClosureConfig(Section):
     search_window: tuple[float, float, float] = _setting(
         (2.0, 2.0, 0.5), "least half-widths of the loop match's box around the graph's estimate",
         gt=0)
-    stale_turn_window: float = _setting(
-        0.6, "rad: after odometry's reading came again unchanged (stale), a lost match is "
-        "sought again this far either side in heading (a robot may have turned in place "
-        "meanwhile)", gt=0, le=math.pi)
     window_margin: float = _setting(
         0.05, "a loop match within this share of its box's edge is refused: the optimum lies at "
         "or beyond the box, not inside it", ge=0, lt=1)
     max_search_window: tuple[float, float, float] = _setting(
         (2.0, 2.0, 0.5), "largest half-widths: between the two, the box spans 3σ of the "
         "propagated relative pose", gt=0)
-    degenerate_share: str = _setting(
-        "floor", "information a loop edge keeps along a degenerate direction, where the "
-        "graph's estimate stood in: the floor below, or the share the curvature supports (a "
-        "wide search's proposal keeps the curvature's; docs/method.md §5, step 3)",
-        choices=DEGENERATE_SHARES)
     degenerate_information: float = _setting(
-        0.01, "the floor: the share of its information an ordinary loop edge keeps along a "
-        "degenerate direction, where its value is the graph's own estimate, not a measurement",
+        0.01, "the share of its information an ordinary loop edge keeps along a degenerate "
+        "direction, where its value is the graph's own estimate, not a measurement (a wide "
+        "search's proposal keeps the share its curvature supports; docs/method.md §5, step 3)",
         gt=0, le=1)
     # The wide search after a long drift (runtime/wide_loop_search.py; docs/method.md §5).
     wide_after: int = _setting(
@@ -702,12 +654,12 @@ def _rplidar(model: str) -> SlamConfig:
 def simulated(lidar: str = "rplidar-a1", beams: int | None = None, min_range: float | None = None,
               max_range: float | None = None) -> SlamConfig:
     """The simulator's SLAM: half the swarm budget of the dataset benchmarks (the simulated
-    odometry always centres the search: 1,500 + 300 evaluations kept the pose error at 4–7 cm
-    in the office world while halving the SLAM time per step), the local stage tried first at
-    odometry's prediction (``predict_first``), and no loop search for the 2 nodes after a
-    closure (``closure_spacing``): 2.2 times the steps per second, the office explorations'
-    pose error 5.1 cm mean over 8 seeds against 6.7; with the three-scan tracking reference
-    of every preset, 3.9 cm (README, bench env)."""
+    odometry always centres the search), the local stage tried first at odometry's prediction
+    (``predict_first``), and no loop search for the 2 nodes after a closure
+    (``closure_spacing``): random driving revisits a place at almost every node. Each was
+    measured in the office explorations of ``swarmslam demo --seed N`` (pose error and steps
+    per second; docs/experiments/2026-11-25-readme-notebook.md); the current figures are the
+    demo's own output and ``bench env``'s (docs/results.md)."""
     b, lo, hi = SIMULATED_LIDARS.get(lidar, SIMULATED_LIDARS["rplidar-a1"])
     return override(SlamConfig(), {
         "sensor.name": f"sim-{lidar}", "sensor.max_points": beams or b,
@@ -809,13 +761,92 @@ def _toml_value(value) -> str:
     return str(value)
 
 
-def to_toml(config, comments: bool = True) -> str:
-    """The whole tree as TOML, each field with its meaning as a comment."""
+# The fields a user is expected to set (``config show --basic``): the scanner, how often a
+# node is made, the swarm and its budget, the loop search's reach, the map, the rate and the
+# capacities.
+BASIC_FIELDS = frozenset({
+    "sensor.name", "sensor.min_range", "sensor.max_range", "sensor.max_points",
+    "capacity.max_nodes", "capacity.max_scans",
+    "front_end.node_distance", "front_end.node_angle", "front_end.odometry_gate",
+    "matcher.resolution", "matcher.swarm.optimizer", "matcher.swarm.max_evaluations",
+    "loop_closure.search_radius", "loop_closure.min_inliers",
+    "map.resolution", "map.max_range",
+    "runtime.rate_hz", "runtime.tick_budget", "runtime.schedule", "runtime.autosave_seconds"})
+# The internals of a stage — numerical steps, search pyramids, slice sizes, the scheduler's
+# smoothing — named so that each can be read and changed, but not what a user tunes: ``config
+# show`` leaves them out, ``config show --all`` lists them.
+EXPERT_FIELDS = frozenset({
+    "input.jump_slack", "input.turn_slack",
+    "front_end.track_inlier_slope", "front_end.curvature_step", "front_end.window_margin",
+    "front_end.stale_turn_window", "front_end.degenerate_information",
+    "front_end.odometry_gate_share", "front_end.odometry_gate_fit",
+    "matcher.surface_bend", "matcher.surface_gap_ratio", "matcher.coarse_radius",
+    "matcher.polish_step", "matcher.polish_halvings", "matcher.polish_evaluations",
+    "matcher.grid_cells", "matcher.occupied_radius", "matcher.robot_diameter",
+    "matcher.predict_first", "matcher.swarm.stagnation_tol", "matcher.swarm.target_value",
+    "matcher.swarm.params",
+    "loop_closure.bearing_bins", "loop_closure.position_floor", "loop_closure.window_margin",
+    "loop_closure.max_violations", "loop_closure.inlier_slope",
+    "loop_closure.degenerate_information", "loop_closure.wide_min_gap",
+    "loop_closure.wide_drift", "loop_closure.wide_max_radius", "loop_closure.wide_turn_drift",
+    "loop_closure.wide_max_angle", "loop_closure.wide_resolution", "loop_closure.wide_hit_sigma",
+    "loop_closure.wide_levels", "loop_closure.wide_query_range", "loop_closure.wide_query_nodes",
+    "loop_closure.wide_query_points", "loop_closure.wide_ratio",
+    "loop_closure.wide_distinct_distance", "loop_closure.wide_agreement",
+    "loop_closure.wide_refine_window", "loop_closure.wide_slice_cells",
+    "loop_closure.wide_slice_nodes", "loop_closure.wide_slice_blocks",
+    "optimizer.tolerance", "optimizer.fill_ratio", "optimizer.lm_initial_damping",
+    "optimizer.lm_iteration_factor",
+    "relocalization.exact_max_cells", "relocalization.coarse_resolution",
+    "relocalization.coarse_hit_sigma", "relocalization.coarse_points",
+    "relocalization.coarse_min_score", "relocalization.coarse_ratio",
+    "relocalization.coarse_candidates", "relocalization.coarse_distinct_distance",
+    "relocalization.coarse_distinct_angle", "relocalization.refine_moves",
+    "relocalization.levels", "relocalization.heading_levels", "relocalization.query_spacing",
+    "relocalization.refine_nodes", "relocalization.confirm_replay_scans",
+    "relocalization.confirm_look", "relocalization.max_cells", "relocalization.slice_blocks",
+    "localization.heading_weight", "localization.merge_distance", "localization.merge_angle",
+    "localization.confirm_miss_floor",
+    "runtime.min_evaluation_share", "runtime.front_end_cost_smoothing", "runtime.loop_queue",
+    "runtime.max_deferred_ticks", "runtime.slice_cost_decay", "runtime.slice_cost_memory",
+    "runtime.latency_window", "runtime.commit_memory", "runtime.warm_up_scans"})
+LEVELS = ("basic", "standard", "all")
+
+
+def field_names(config=None) -> list[str]:
+    """Every field's dotted name, in the tree's order."""
+    names: list[str] = []
+
+    def walk(section, table: str):
+        for f in fields(section):
+            key = f"{table}.{f.name}" if table else f.name
+            if is_dataclass(getattr(section, f.name)):
+                walk(getattr(section, f.name), key)
+            else:
+                names.append(key)
+
+    walk(config if config is not None else SlamConfig(), "")
+    return names
+
+
+def shown(key: str, level: str = "all") -> bool:
+    """Whether ``config show`` at ``level`` lists the field ``key``: basic the few a user is
+    expected to set, standard all but the stages' internals, all every one."""
+    if level not in LEVELS:
+        raise ConfigError(f"unknown level {level!r}; choose one of {', '.join(LEVELS)}")
+    return level == "all" or (key in BASIC_FIELDS if level == "basic"
+                              else key not in EXPERT_FIELDS)
+
+
+def to_toml(config, comments: bool = True, level: str = "all") -> str:
+    """The tree as TOML, each field with its meaning as a comment; ``level`` (see
+    :func:`shown`) leaves fields out — what is left out keeps its value when read back."""
     lines: list[str] = []
 
     def emit(section, table: str):
-        plain = [f for f in fields(section) if not is_dataclass(getattr(section, f.name))]
-        if table:
+        plain = [f for f in fields(section) if not is_dataclass(getattr(section, f.name))
+                 and shown(f"{table}.{f.name}" if table else f.name, level)]
+        if table and plain:
             lines.append(f"\n[{table}]" if lines else f"[{table}]")
         for f in plain:
             line = f"{f.name} = {_toml_value(getattr(section, f.name))}"

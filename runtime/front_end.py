@@ -9,9 +9,7 @@ last motion the scans showed), and matching every scan against the same keyframe
 error between two nodes to one match instead of a sum of many. A match that lands too few
 points on the keyframe's surfaces, or (with odometry) corrects odometry by more than the
 odometry gate, has lost track: odometry stands in, or on scans alone the whole box is searched.
-With ``odometry_noise_window`` set, a node's edge takes odometry's heading in the share that
-odometry's record in this log has earned (swarmslam.runtime.odometry_noise). The trajectory — every
-scan's node and pose in that node's frame — is recorded here.
+The trajectory — every scan's node and pose in that node's frame — is recorded here.
 """
 
 from __future__ import annotations
@@ -25,8 +23,6 @@ from swarmslam.runtime.config import FrontEndConfig, SlamConfig
 from swarmslam.runtime.degeneracy import Degeneracy
 from swarmslam.runtime.loop_closure import propagate_covariance
 from swarmslam.runtime.node_scans import NodeScans
-from swarmslam.runtime.odometry_noise import OdometryNoise
-from swarmslam.runtime.odometry_scale import OdometryScale
 from swarmslam.runtime.pose import between, compose, interpolate
 from swarmslam.runtime.pose_graph import ODOMETRY, PoseGraph, information_from_sigma
 from swarmslam.runtime.scan import PointScan
@@ -104,21 +100,6 @@ class FrontEnd:
         # The pose (in the keyframe's frame) of the scan that brought that reading: odometry's
         # motion is predicted from there (docs/method.md §6.1).
         self.odometry_rel = np.zeros(3)
-        # Odometry at the keyframe's scan, and whether every scan since brought a reading: the
-        # node step's odometry, fused with the match's heading (swarmslam.runtime.odometry_noise).
-        self.keyframe_odometry = np.zeros(3)
-        self.odometry_since_keyframe = False
-        f = config.front_end
-        self.odometry_noise = OdometryNoise(f.odometry_noise_window, f.odometry_noise_min_steps,
-                                            f.odometry_turn_split, f.odometry_sigma_floor,
-                                            f.match_heading_sigma)
-        # Odometry's distance scale, learnt from the steps the match pinned and applied where
-        # it could not (swarmslam.runtime.odometry_scale).
-        self.odometry_scale = OdometryScale(
-            f.odometry_scale_window, f.odometry_scale_min_steps, f.odometry_scale_min_step,
-            f.odometry_scale_max_turn, f.odometry_scale_dead_zone, f.odometry_scale_confidence,
-            graph.max_edges)
-        self.slid = False  # a match since the keyframe was held to the prediction somewhere
         self.weak = False  # a match since the last node was replaced by odometry
         self.lost_matches = 0
         self.overruled_odometry = 0  # matches the gate refused that the scans upheld
@@ -138,9 +119,6 @@ class FrontEnd:
             return Tracking(self.graph.poses[0].copy(), True, 0, 0.0)
         base, step, news = self._prediction(odometry)
         self.stale = odometry is not None and not news  # the same reading as before
-        if odometry is not None:
-            self.odometry_scale.scale_step(step)
-        self.odometry_since_keyframe &= odometry is not None
         guess = compose(base, step)
         match = self.matcher.align_scans(scan, self.reference, guess)  # Alg. 5
         self.evaluations = match.evaluations
@@ -148,7 +126,6 @@ class FrontEnd:
         self.degeneracy = None
         if self.config.front_end.degeneracy_ratio > 0:
             pose = self._constrained(scan, pose, guess)
-            self.slid |= self.degeneracy.degenerate
         # (after the slide along a degenerate axis is dropped: there the box's edge is no sign)
         inside = not self.matcher.at_box_edge(pose, self.config.front_end.window_margin)
         if self._lost(scan, pose, guess, step, odometry is not None, inside):
@@ -180,16 +157,9 @@ class FrontEnd:
         if self.degeneracy is not None:  # the edge is the last match: weak where it slid
             info = self.degeneracy.information(info)
         z = self.rel
-        if self.odometry_since_keyframe:  # odometry's heading over the step, by its record
-            z_odometry = between(self.last_odometry, self.keyframe_odometry)
-            if not self.weak:  # the match held: its disagreement with odometry is a sample
-                self.odometry_noise.add(self.rel, z_odometry)
-            z, info = self.odometry_noise.fuse(self.rel, info, z_odometry)
-            self._learn_scale(g.n_edges, z_odometry)  # before the weak step is forgotten
         if self.weak:
             info = info / c.weak_information_factor
             self.weak = False
-        self.slid = False
         node = g.add_node(compose(g.poses[previous], z), stamp)
         g.add_edge(previous, node, z, info, ODOMETRY)
         cov = self.nodes.cov
@@ -199,7 +169,6 @@ class FrontEnd:
         self.keyframe = node
         self.odometry_rel[:] = between(self.odometry_rel, self.rel)  # the new node's frame
         self.rel = np.zeros(3)
-        self._odometry_at_keyframe()
         self.rebuild_reference()
         return True
 
@@ -222,7 +191,6 @@ class FrontEnd:
         self.rel[:], self.motion[:] = 0.0, 0.0
         self.weak, self.have_odometry = False, False
         self._prediction(odometry)  # the new run's odometry starts here
-        self._odometry_at_keyframe()
         self.rebuild_reference()
         self._record(stamp)
         return True
@@ -284,7 +252,6 @@ class FrontEnd:
             self.last_odometry[:] = odometry
             self.odometry_rel[:] = 0.0
             self.have_odometry = True
-        self._odometry_at_keyframe()
         self._record(stamp)
 
     def _submap_of(self, node, placed: bool = False):
@@ -303,19 +270,6 @@ class FrontEnd:
         m = self._n_submap  # the kept poses are rows 0..m-1, the keyframe's the last
         return self.nodes.place(self._submap_poses, self._submap_nodes[:m], m - 1,
                                 self._submap, rows=range(m))
-
-    def _learn_scale(self, edge: int, z_odometry) -> None:
-        """A node step's lesson on odometry's distance scale (swarmslam.runtime.odometry_scale): one
-        the match pinned throughout estimates it; one whose last match was held to the
-        prediction along an axis is marked, to follow the scale as it is learnt."""
-        scale = self.odometry_scale
-        if not scale.enabled:
-            return
-        if self.degeneracy is not None and self.degeneracy.degenerate:
-            scale.mark_edge(edge, self.degeneracy.axis, z_odometry, scale.scale)
-        elif not (self.slid or self.weak):
-            scale.add_step(self.rel, z_odometry)
-        scale.rescale(self.graph.z, self.graph.n_edges)
 
     def _inliers(self, scan, pose) -> float:
         c = self.config.front_end
@@ -392,10 +346,6 @@ class FrontEnd:
         wide = self.matcher.align_scans(scan, self.reference, None).pose
         return max((pose, wide), key=lambda p: self._inliers(scan, p))
 
-    def _odometry_at_keyframe(self):
-        self.keyframe_odometry[:] = self.last_odometry
-        self.odometry_since_keyframe = self.have_odometry
-
     def _prediction(self, odometry):
         """Where the scan's predicted pose starts (in the keyframe's frame), the motion added
         to it, and whether odometry brought a new reading. A new reading predicts odometry's
@@ -438,10 +388,6 @@ class FrontEnd:
                 "degenerate_matches": self.degenerate_matches, "status": self.status,
                 "submap_nodes": self._submap_nodes[: self._n_submap].copy(),
                 "submap_poses": self._submap_poses[: self._n_submap].copy(),
-                "keyframe_odometry": self.keyframe_odometry.copy(),
-                "odometry_since_keyframe": self.odometry_since_keyframe,
-                "odometry_noise": self.odometry_noise.state(), "slid": self.slid,
-                "odometry_scale": self.odometry_scale.state(self.graph.n_edges),
                 "odometry_rel": self.odometry_rel.copy()}
 
     def restore(self, state: dict) -> None:
@@ -464,16 +410,8 @@ class FrontEnd:
         self.lost_matches, self.status = int(state["lost_matches"]), str(state["status"])
         self.degenerate_matches = int(state["degenerate_matches"])
         self.keyframe = int(state["keyframe"])
-        # a session saved before odometry's noise was learnt starts learning it afresh
-        self.keyframe_odometry[:] = state.get("keyframe_odometry", self.last_odometry)
-        self.odometry_since_keyframe = bool(state.get("odometry_since_keyframe", False))
-        if "odometry_noise" in state:
-            self.odometry_noise.restore(state["odometry_noise"])
-        self.slid = bool(state.get("slid", False))
         # a session saved before stale readings were told apart predicts from its last scan
         self.odometry_rel[:] = state.get("odometry_rel", self.rel)
-        if "odometry_scale" in state:  # a session saved before it learns the scale afresh
-            self.odometry_scale.restore(state["odometry_scale"])
         if self.keyframe >= 0 and not 0 <= self.keyframe < n:
             raise ValueError(f"keyframe {self.keyframe} is not a stored node")
         members = state.get("submap_nodes", np.zeros(0, np.int64))

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from swarmslam.runtime.pose import between
+from swarmslam.runtime.pose import between, compose
 from swarmslam.runtime.text_records import DataFormatError, records
 
 # Readings at or beyond this are "no return" in a FLASER log that does not show its own value
@@ -72,7 +72,8 @@ class LaserRecord:
     odometry: np.ndarray  # raw odometry at the scan
     max_range: float
     laser_offset: np.ndarray = field(default_factory=lambda: np.zeros(3))  # laser in robot
-    line: int = 0
+    line: int = 0  # the record's line (a bag's message number)
+    time_increment: float = 0.0  # s between beams (a bag's LaserScan; 0: not known)
 
 
 @dataclass
@@ -89,6 +90,7 @@ class CarmenLog:
     odometry: list[OdometryRecord]
     skipped: dict = field(default_factory=dict)  # records skipped, by the field that failed
     skipped_examples: list = field(default_factory=list)  # "file:line: kind field: value"
+    stopped: str | None = None  # where a damaged file stopped being read (what came before kept)
 
     def scan_poses(self) -> np.ndarray:
         """The poses logged with the scans, ``(N, 3)``."""
@@ -375,13 +377,16 @@ def flaser_line(ranges, pose, odometry, stamp: float, host: str = "swarmslam") -
 
 
 def robotlaser1_line(ranges, start_angle: float, angular_res: float, max_range: float, pose,
-                     stamp: float, host: str = "swarmslam") -> str:
-    """A ROBOTLASER1 line for a scanner at the robot's origin, ``pose`` its odometry."""
+                     stamp: float, host: str = "swarmslam", laser_offset=None) -> str:
+    """A ROBOTLASER1 line, ``pose`` the robot's odometry, the scanner at ``laser_offset`` on
+    the robot (default: its origin)."""
     rs = " ".join(f"{r:.3f}" for r in ranges)
     p = _nums(pose)
+    laser = p if laser_offset is None else _nums(compose(np.asarray(pose, float),
+                                                          np.asarray(laser_offset, float)))
     fov = angular_res * len(ranges)
     return (f"ROBOTLASER1 0 {_num(start_angle)} {_num(fov)} {_num(angular_res)} "
-            f"{_num(max_range)} 0.01 0 {len(ranges)} {rs} 0 {p} {p} 0 0 0 0 0 "
+            f"{_num(max_range)} 0.01 0 {len(ranges)} {rs} 0 {laser} {p} 0 0 0 0 0 "
             f"{_num(stamp)} {host} {_num(stamp)}")
 
 

@@ -1,5 +1,5 @@
-"""``swarmslam``: the command-line entry point. Thin: it parses arguments and calls the
-packages, which hold the logic."""
+"""``swarmslam``: the command-line entry point. It parses arguments and calls the packages,
+which hold the logic; :data:`HELP` is what ``--help`` tells a user of each command."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import contextlib
 import math
 import signal
 import sys
+import textwrap
 import time
 from pathlib import Path
 
@@ -16,9 +17,11 @@ from swarmslam.runtime.config import (
     OPTIMIZERS,
     PRESETS,
     SlamConfig,
+    field_names,
     load_config,
     preset,
     session_changes,
+    shown,
     to_toml,
 )
 from swarmslam.runtime.inbox import skipped_text
@@ -73,6 +76,22 @@ def _bench_slam(args) -> int:
     bench_slam(find_datasets(args.data), optimizers, logs, modes, args.limit, args.out, args.json,
                config=_config(args, DEFAULT_PRESET), seeds=seeds, plots=args.plots)
     return 0
+
+
+def _bench_bags(args) -> int:
+    from swarmslam.bench.bags import bench_bags, dataset_logs
+    from swarmslam.datasets import find_datasets
+
+    bench_bags(dataset_logs(find_datasets(args.data), _logs(args)), args.repeats, args.json)
+    if args.json:
+        print(f"wrote {args.json}")
+    return 0
+
+
+def _bench_report(args) -> int:
+    from swarmslam.bench.report import bench_report
+
+    return bench_report(args.results, args.page, args.readme, check=args.check)
 
 
 def _bench_localize(args) -> int:
@@ -151,7 +170,13 @@ def _config_show(args) -> int:
     config = preset(args.preset or DEFAULT_PRESET)
     if args.config:
         config = load_config(args.config, config)
-    sys.stdout.write(to_toml(config, comments=not args.bare))
+    level = "basic" if args.basic else "all" if args.all else "standard"
+    text = to_toml(config, comments=not args.bare, level=level)
+    if level != "all" and not args.bare:
+        hidden = sum(not shown(key, level) for key in field_names(config))
+        which = "all but the basic ones" if args.basic else "the stages' internals"
+        text += f"\n# {hidden} more fields ({which}): swarmslam config show --all\n"
+    sys.stdout.write(text)
     return 0
 
 
@@ -167,7 +192,7 @@ def _replay(args) -> int:
                args.limit, args.seed,
                config=None if changes is not None else _config(args, DEFAULT_PRESET),
                localize=args.localize, resume=args.resume, start=args.start,
-               watch=RunWatch.from_args(args), session_changes=changes)
+               watch=RunWatch.from_args(args), session_changes=changes, bag=_bag(args))
     if args.localize:
         r = m["runtime"]
         print(f"{m['scans']} scans localized in {args.localize}: {m['scans_with_pose']} with a "
@@ -197,6 +222,16 @@ def _replay(args) -> int:
     if m["status"] != "ok":
         print(f"status: {m['status']}")
     return 1 if m["status"].startswith(UNUSABLE) else 0
+
+
+def _convert(args) -> int:
+    from swarmslam.convert import convert
+
+    written = convert(args.input, args.output, args.format, _bag(args),
+                      warn=lambda text: print(text, file=sys.stderr))
+    print(f"wrote {written['output']} ({written['format']}): {written['scans']} scans, "
+          f"{written['odometry']} odometry readings")
+    return 0
 
 
 def _sweep(args) -> int:
@@ -302,7 +337,7 @@ def _lidar(args) -> int:
             args.port, args.model, args.mode, args.out, args.rate, args.seconds, args.resume,
             config=None if changes is not None else _config(args, f"rplidar-{args.model}"),
             localize=args.localize, watch=RunWatch.from_args(args), baud=args.baud,
-            session_changes=changes)
+            session_changes=changes, bag=args.bag)
     return 1 if summary["status"].startswith("no scans") else 0
 
 
@@ -369,6 +404,21 @@ def _bench_outputs(parser) -> None:
                         help="write the figures (PNG) here (extra 'plots')")
 
 
+def _bag_options(parser) -> None:
+    """Which topics and frames of a ROS bag to read."""
+    parser.add_argument("--scan-topic", help="a bag's LaserScan topic (default: the only one)")
+    parser.add_argument("--odom-topic", help="a bag's Odometry topic (default: the only one; "
+                                             "none: tf)")
+    parser.add_argument("--odom-frame", default="odom", help="odometry's frame in tf")
+    parser.add_argument("--base-frame", default="base_link", help="the robot's frame in tf")
+
+
+def _bag(args):
+    from swarmslam.logs import BagOptions
+
+    return BagOptions(args.scan_topic, args.odom_topic, args.odom_frame, args.base_frame)
+
+
 def _view_options(parser) -> None:
     parser.add_argument("--view", action="store_true",
                         help="watch it live in rerun (extra 'view'; without a display it serves "
@@ -378,17 +428,138 @@ def _view_options(parser) -> None:
                                                        "(scans, poses, frames, the map)")
 
 
+DESCRIPTION = """SwarmSLAM: 2-D LiDAR graph SLAM whose scan matching is done by swarm optimizers
+(particle swarm, artificial bee colony, firefly). Run it over a simulated robot (demo), a
+recorded log or ROS bag (replay), or a live RPLidar (lidar); benchmark it on the public logs
+(bench). Each command has its own --help."""
+
+D = "../shared/datasets/radish"
+# (what the command does, reads and writes; an example) per command, shown by its --help
+HELP = {
+    "config": ("The SLAM's configuration: one tree of validated fields, in presets per "
+               "scanner. See docs/configuration.md.", "swarmslam config show --basic"),
+    "config show": ("Print the effective configuration as TOML, each field with its meaning "
+                    "(--basic: the fields a user sets; --all: with each stage's internals). "
+                    "The output is a valid --config file.",
+                    "swarmslam config show rplidar-a2 > mine.toml"),
+    "config fields": ("Print every field as the Markdown tables of docs/configuration.md.",
+                      "swarmslam config fields > fields.md"),
+    "lidar": ("Live SLAM from a Slamtec RPLidar on a serial port at a fixed rate. Prints the "
+              "scanner's info and a status line each second; on Ctrl-C or SIGTERM writes the "
+              "map (PGM + YAML, PNG), trajectory (TUM), graph (g2o), session.npz and "
+              "summary.json to --out. Wiring and udev: hardware/README.md.",
+              "swarmslam lidar --port /dev/rplidar --model a2 --out my-run"),
+    "emulate": ("A virtual RPLidar on a pseudo-terminal, answering the protocol and streaming "
+                "scans of a simulated world (a robot exploring it) or a CARMEN log, with "
+                "optional faults. Point `swarmslam lidar --port` at the link it prints.",
+                "swarmslam emulate --world office --link /tmp/rplidar  # then: swarmslam "
+                "lidar --port /tmp/rplidar"),
+    "demo": ("A simulated robot with a 360° LiDAR explores a world on its own while the SLAM "
+             "tracks it, until 90% is mapped. Prints coverage, collisions and the pose error "
+             "against the truth; writes the map, both trajectories (TUM), trajectory.png and "
+             "summary.json to --out (default swarmslam-demo/).",
+             "swarmslam demo --world maze --seed 3"),
+    "replay": ("Run the SLAM over a CARMEN log (plain or .gz, a pipe, - for stdin) or a ROS bag "
+               "(.bag, .mcap, a ROS 2 bag folder; extra 'bags'), as fast as it goes. With "
+               "--relations, scores it (Kümmerle eT, eR). Writes map.pgm/.yaml/.png, "
+               "trajectory.tum, graph.g2o, session.npz and metrics.json to --out. Exit 1 when "
+               "the input was unusable.",
+               f"swarmslam replay {D}/intel.clf.gz --relations {D}/intel.relations --out "
+               "out/intel"),
+    "convert": ("Convert a log: CARMEN ⇄ ROS 1 bag, ROS 2 bag (sqlite3 or MCAP). The format "
+                "comes from OUTPUT's name (X.bag ROS 1, X.mcap MCAP, X.clf / X.gz CARMEN, "
+                "anything else a ROS 2 sqlite3 bag folder) or --format. docs/formats.md §9.",
+                f"swarmslam convert {D}/intel.clf.gz intel.mcap"),
+    "simlog": ("A CARMEN log, its Kümmerle relations, the true trajectory (TUM) and the world "
+               "from a scripted survey of a generated floor, with a chosen scanner, rate, "
+               "odometry and real-robot effects: logs with ground truth. docs/simulator.md.",
+               "swarmslam simlog out/b.clf.gz --site building --scanner sick-0.5 --rate 10 "
+               "--effects robot"),
+    "relations": ("Kümmerle relations files: check them against a log.",
+                  f"swarmslam relations audit {D}/intel.clf.gz {D}/intel.relations"),
+    "relations audit": ("Check each relation against the log's own scans (ICP between its two "
+                        "scans) and, with --trajectory, list the worst relations of a run with "
+                        "the turn rate and odometry's own error there. docs/method.md §7.1.",
+                        f"swarmslam relations audit {D}/mit-csail.clf.gz "
+                        f"{D}/mit-csail.relations --trajectory out/mit/trajectory.tum"),
+    "sweep": ("Replays over logs × optimizers × seeds × configuration variants as Ray tasks "
+              "(extra 'scale'), each finished run appended to a results file at once; a sweep "
+              "started again runs only what it lacks. docs/sweeps.md.",
+              "swarmslam sweep bench-results/sweep-intel-aces.toml --workers 2"),
+    "tune": ("Search configuration fields with Ray Tune and Optuna (extra 'scale'); the "
+             "objective is the worst ratio of a log's eT to its reference. Writes the best "
+             "configuration as TOML. docs/sweeps.md §3.", "swarmslam tune my-tuning.toml "
+             "--trials 24"),
+    "rllib": ("Train RLlib's PPO on SwarmSlam-v0 with env runners on Ray (extra 'rllib'). "
+              "docs/sweeps.md §4.", "swarmslam rllib --env-runners 4 --iterations 20 --slam"),
+    "bench": ("Benchmarks: each prints a table and, with --json, writes its figures with the "
+              "commit, date, command, machine and whether the machine was shared. "
+              "docs/benchmarks.md.", "swarmslam bench slam --json bench-results/slam.json"),
+    "bench matcher": ("Scan matching alone, with no initial guess, on the keyframe logs: "
+                      "failure rate, error, time per match, per optimizer.",
+                      "swarmslam bench matcher --optimizers abc --json bench-results/matcher.json"),
+    "bench slam": ("The SLAM on the raw Intel, ACES3, fr-clinic and MIT-CSAIL logs, scored by "
+                   "their relations, mean and worst over seeds, beside published systems.",
+                   "swarmslam bench slam --optimizers abc --modes odometry --json "
+                   "bench-results/slam.json"),
+    "bench generalization": ("SLAM on seeded simulated surveys, scored against the truth "
+                             "(error, ATE, loop precision and recall, the perfect-matching "
+                             "floor).", "swarmslam bench generalization --json "
+                             "bench-results/generalization.json"),
+    "bench localize": ("Global relocalization with no prior in maps of Intel, ACES3 and "
+                       "fr-clinic: one scan, confirmed, and tracking.",
+                       "swarmslam bench localize --json bench-results/localize.json"),
+    "bench posegraph": ("Gauss–Newton on the g2o benchmark graphs, against g2o's χ² and time.",
+                        "swarmslam bench posegraph --json bench-results/posegraph.json"),
+    "bench env": ("SwarmSlam-v0 steps per second with and without SLAM, and the LiDAR caster's "
+                  "speed.", "swarmslam bench env --json bench-results/env.json"),
+    "bench runtime": ("The fixed-rate runtime at 10 Hz on a log: latency, deadline misses, "
+                      "memory after warm-up, accuracy; --soak MIN: a long run on simulated "
+                      "scans.", "swarmslam bench runtime --json bench-results/runtime.json"),
+    "bench bags": ("What reading a ROS bag costs beside the replay it feeds, per format, and "
+                   "whether the MCAP bag replays as the CARMEN log.",
+                   "swarmslam bench bags --json bench-results/bags.json"),
+    "bench report": ("Write docs/results.md and the README's results block from "
+                     "bench-results/*.json (--check: only say whether they differ).",
+                     "swarmslam bench report"),
+    "bench sweep": ("A sweep spec run serially and on a local Ray: wall times, and whether "
+                    "every run's figures agree.",
+                    "swarmslam bench sweep bench-results/sweep-intel-aces.toml --workers 2"),
+}
+
+
+def _describe(parser, prefix=()) -> None:
+    """Each command's --help: what it does, reads and writes, and an example."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                key = " ".join((*prefix, name))
+                description, example = HELP[key]
+                sub.description = textwrap.fill(description, 79)
+                sub.epilog = f"example:\n  {example}"
+                sub.formatter_class = argparse.RawDescriptionHelpFormatter
+                _describe(sub, (*prefix, name))
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="swarmslam", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="swarmslam", description=DESCRIPTION,
+                                epilog="example:\n  swarmslam demo",
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="command", required=True)
 
     cf = sub.add_parser("config", help="the SLAM's configuration")
     csub = cf.add_subparsers(dest="action", required=True)
-    show = csub.add_parser("show", help="print the full effective configuration as TOML")
+    show = csub.add_parser("show", help="print the effective configuration as TOML "
+                                        "(--basic, --all)")
     show.add_argument("preset", nargs="?", choices=list(PRESETS),
                       help=f"a preset (default: {DEFAULT_PRESET})")
     show.add_argument("--config", metavar="FILE", help="with this TOML file's changes")
     show.add_argument("--bare", action="store_true", help="without the comments")
+    levels = show.add_mutually_exclusive_group()
+    levels.add_argument("--basic", action="store_true",
+                        help="only the fields a user is expected to set")
+    levels.add_argument("--all", action="store_true",
+                        help="every field, the stages' internals too")
     show.set_defaults(func=_config_show)
     csub.add_parser("fields", help="every field as the Markdown tables of "
                                    "docs/configuration.md").set_defaults(func=_config_fields)
@@ -397,6 +568,9 @@ def build_parser() -> argparse.ArgumentParser:
     li = sub.add_parser("lidar", help="live SLAM from an RPLidar (or the emulator) at a fixed rate")
     li.add_argument("--port", required=True, help="serial port, e.g. /dev/rplidar or /dev/ttyUSB0")
     li.add_argument("--model", default="a1", choices=models)
+    li.add_argument("--bag", metavar="FILE",
+                    help="record every scan to a ROS bag (X.bag: ROS 1, X.mcap: MCAP, any other "
+                         "name: a ROS 2 sqlite3 bag folder; extra 'bags')")
     li.add_argument("--baud", type=_at_least_one,
                     help="switch the link to this rate after connecting, where the model "
                          "allows (the A2: 256000)")
@@ -443,8 +617,9 @@ def build_parser() -> argparse.ArgumentParser:
     _view_options(demo)
     demo.set_defaults(func=_demo)
 
-    rp = sub.add_parser("replay", help="run the SLAM over a CARMEN log")
-    rp.add_argument("log", help="CARMEN log (.clf, .log, plain or .gz)")
+    rp = sub.add_parser("replay", help="run the SLAM over a CARMEN log or a ROS bag")
+    rp.add_argument("log", help="CARMEN log (.clf, .log, plain or .gz; - for standard input) "
+                                "or ROS bag (.bag, a ROS 2 bag folder, .mcap, .db3)")
     rp.add_argument("--relations", help="Kümmerle relations file to score against")
     rp.add_argument("--optimizer", choices=OPTIMIZERS,
                     help="swarm method (default: the configuration's, abc)")
@@ -460,9 +635,20 @@ def build_parser() -> argparse.ArgumentParser:
     saved.add_argument("--resume", metavar="SESSION",
                        help="extend a saved session's map from wherever the log starts in it "
                             "(multi-session mapping)")
+    _bag_options(rp)
     _config_options(rp, DEFAULT_PRESET, sessions=True)
     _view_options(rp)
     rp.set_defaults(func=_replay)
+
+    cv = sub.add_parser("convert", help="a log from one format to another: CARMEN ⇄ ROS 1 "
+                                        "bag, ROS 2 bag (sqlite3 or MCAP)")
+    cv.add_argument("input", help="CARMEN log or ROS bag")
+    cv.add_argument("output", help="X.clf / X.clf.gz: CARMEN; X.bag: ROS 1; X.mcap: MCAP "
+                                   "(ROS 2); any other name: a ROS 2 sqlite3 bag folder")
+    cv.add_argument("--format", choices=["carmen", "ros1", "sqlite3", "mcap"],
+                    help="the output's format (default: from its name)")
+    _bag_options(cv)
+    cv.set_defaults(func=_convert)
 
     from swarmslam_sim.survey import EFFECT_HELP, EFFECTS, ODOMETRY, SCANNERS, SITES
 
@@ -617,6 +803,21 @@ def build_parser() -> argparse.ArgumentParser:
     _bench_outputs(rt)
     _config_options(rt, DEFAULT_PRESET)
     rt.set_defaults(func=_bench_runtime)
+    bg = bsub.add_parser("bags", help="the cost of reading a ROS bag (ROS 1, sqlite3, MCAP) "
+                                      "beside the replay it feeds; MCAP vs CARMEN trajectory")
+    bg.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
+    bg.add_argument("--datasets", default="intel", help="logs converted and replayed")
+    bg.add_argument("--repeats", type=_at_least_one, default=3, help="reads timed per bag")
+    _bench_outputs(bg)
+    bg.set_defaults(func=_bench_bags)
+    br = bsub.add_parser("report", help="write docs/results.md and the README's results block "
+                                         "from bench-results/*.json")
+    br.add_argument("--results", default="bench-results", help="the benchmarks' JSON folder")
+    br.add_argument("--page", default="docs/results.md", help="the results page written")
+    br.add_argument("--readme", default="README.md", help="the README whose block is rewritten")
+    br.add_argument("--check", action="store_true",
+                    help="write nothing; exit 1 when either differs from what the JSON gives")
+    br.set_defaults(func=_bench_report)
     bs = bsub.add_parser("sweep", help="a sweep spec run serially and on a local Ray: wall "
                                        "times and the runs' figures compared")
     bs.add_argument("spec", help="the sweep's TOML spec (its results file is not touched)")
@@ -624,6 +825,7 @@ def build_parser() -> argparse.ArgumentParser:
     bs.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
     _bench_outputs(bs)
     bs.set_defaults(func=_bench_sweep)
+    _describe(p)
     return p
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import fields, is_dataclass
 
-from swarmslam.runtime.config import SlamConfig, _toml_value
+from swarmslam.runtime.config import BASIC_FIELDS, EXPERT_FIELDS, SlamConfig, _toml_value
 
 
 def _allowed(meta) -> str:
@@ -17,18 +17,22 @@ def _allowed(meta) -> str:
 
 
 def fields_markdown(config=None) -> str:
-    """Per section, a table of its fields: name, default, meaning, allowed values."""
+    """Per section, a table of its fields: name, default, meaning, allowed values, and its
+    level: **basic** (set by users), standard, or internal (``config show --all`` only)."""
     config = config or SlamConfig()
     out = ["## Fields"]
 
     def emit(section, table):
         plain = [f for f in fields(section) if not is_dataclass(getattr(section, f.name))]
         if table and plain:
-            out.extend(["", f"### `[{table}]`", "", "| field | default | meaning | allowed |",
-                        "|---|---|---|---|"])
+            out.extend(["", f"### `[{table}]`", "", "| field | default | meaning | allowed | level |",
+                        "|---|---|---|---|---|"])
             for f in plain:
+                key = f"{table}.{f.name}"
+                level = ("**basic**" if key in BASIC_FIELDS else
+                         "internal" if key in EXPERT_FIELDS else "standard")
                 out.append(f"| `{f.name}` | `{_toml_value(getattr(section, f.name))}` | "
-                           f"{f.metadata.get('doc', '')} | {_allowed(f.metadata)} |")
+                           f"{f.metadata.get('doc', '')} | {_allowed(f.metadata)} | {level} |")
         for f in fields(section):
             if is_dataclass(getattr(section, f.name)):
                 emit(getattr(section, f.name), f"{table}.{f.name}" if table else f.name)

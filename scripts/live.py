@@ -21,6 +21,7 @@ from swarmslam.hardware.models import model as get_model
 from swarmslam.runtime.config import SlamConfig, override, preset
 from swarmslam.runtime.fixed_rate import SlamRuntime
 from swarmslam.runtime.writers import write_json_atomic
+from swarmslam.bags import BagRecorder
 from swarmslam.outputs import check_writable, clean_stale, output_set, write_results
 from swarmslam.run_view import frame_of
 from swarmslam.tum import write_tum
@@ -37,14 +38,17 @@ def run_live(port: str, model: str = "a1", mode: str = "typical", out_dir="swarm
              rate_hz: float | None = None, seconds: float | None = None, resume=None,
              echo=print, stop: threading.Event | None = None,
              config: SlamConfig | None = None, localize=None, watch=None,
-             baud: int | None = None, session_changes: dict | None = None) -> dict:
+             baud: int | None = None, session_changes: dict | None = None,
+             bag=None) -> dict:
     """``config``: the whole configuration (default: the model's preset); ``rate_hz``
     overrides its tick rate. ``resume``: a session extended from wherever the scanner is in
     its map (found first); ``localize``: a session to localize in, never changed. Both take
     the session's configuration, with ``session_changes``
     (:func:`swarmslam.runtime.config.session_changes`: search and tracking only).
     ``watch``: a :class:`swarmslam.run_view.RunWatch` shown after every tick that took a scan.
-    ``baud``: a rate to switch the link to after connecting (where the model allows)."""
+    ``baud``: a rate to switch the link to after connecting (where the model allows).
+    ``bag``: a ROS bag to record every scan to (its format from its name,
+    :mod:`swarmslam.bags`), written whole when the run ends."""
     out = Path(out_dir)
     check_writable(out)
     clean_stale(out)
@@ -70,9 +74,16 @@ def run_live(port: str, model: str = "a1", mode: str = "typical", out_dir="swarm
     if runtime.session_note:
         echo(runtime.session_note)
     inbox = runtime.inbox
+    recorder = None
+    if bag is not None:  # (the extra 'bags' only when recording: refused now if missing)
+        m = get_model(model)
+        bins = 360 * max(1, round(m.samples_per_second / m.scan_hz / 360))
+        recorder = BagRecorder(bag, bins, runtime.config.sensor.max_range)
 
     def on_scan(angles, ranges, stamp):
         inbox.put_ranges(angles=angles, ranges=ranges, stamp=stamp)
+        if recorder is not None:
+            recorder.put(angles, ranges, stamp)
 
     lidar = RPLidar(port, model, on_scan=on_scan)
     lidar.connect()
@@ -127,6 +138,10 @@ def run_live(port: str, model: str = "a1", mode: str = "typical", out_dir="swarm
         lidar.close()
         if watch is not None:
             watch.close()
+        if recorder is not None:
+            echo(f"wrote {recorder.close()}: {recorder.recorded} scans"
+                 + (f" ({recorder.dropped} dropped: the disk fell behind)"
+                    if recorder.dropped else ""))
     return save_outputs(runtime, out, lidar.report(), echo)
 
 

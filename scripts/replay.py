@@ -1,4 +1,5 @@
-"""``swarmslam replay LOG``: the SLAM over a recorded CARMEN log, scored if relations are given.
+"""``swarmslam replay LOG``: the SLAM over a recorded log — CARMEN, or a ROS 1 / ROS 2 bag —
+scored if relations are given.
 
 Writes to ``out_dir`` (atomically): the map (PGM + YAML for ROS map_server, and PNG), the
 trajectory of every scan (TUM), the pose graph (g2o), the session (``session.npz``: localize
@@ -17,7 +18,7 @@ from swarmslam.runtime.fixed_rate import SlamRuntime
 from swarmslam.runtime.pose import compose
 from swarmslam.runtime.scan import PointScan, ranges_to_points
 from swarmslam.runtime.writers import write_json_atomic
-from swarmslam.carmen import read_carmen
+from swarmslam.logs import BagOptions, read_log
 from swarmslam.metrics import kummerle, match_relations
 from swarmslam.outputs import check_writable, output_set, write_results
 from swarmslam.progress import Progress
@@ -99,7 +100,8 @@ def log_seconds(lasers) -> float:
 def replay(log_path, relations_path=None, optimizer: str | None = None, odometry=True,
            out_dir=None, limit=None, seed=0, config: SlamConfig | None = None, label="replay",
            echo=print, schedule: str = "lockstep", localize=None, resume=None,
-           start: int = 0, watch=None, session_changes: dict | None = None) -> dict:
+           start: int = 0, watch=None, session_changes: dict | None = None,
+           bag: BagOptions | None = None) -> dict:
     """Every scan of the log through :class:`SlamRuntime`, one tick each, as fast as it goes.
     The default schedule is lockstep (the whole back end every tick, as ``GraphSlam.step``);
     ``budgeted`` slices it as on a robot. ``optimizer`` overrides ``config``'s.
@@ -112,7 +114,7 @@ def replay(log_path, relations_path=None, optimizer: str | None = None, odometry
     every tick (closed at the end)."""
     return replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, seed,
                       config, label, schedule, localize=localize, resume=resume,
-                      start=start, watch=watch, session_changes=session_changes)[0]
+                      start=start, watch=watch, session_changes=session_changes, bag=bag)[0]
 
 
 def replay_runtime(scans: int, optimizer=None, seed=0, config: SlamConfig | None = None,
@@ -137,23 +139,25 @@ def replay_runtime(scans: int, optimizer=None, seed=0, config: SlamConfig | None
 def replay_run(log_path, relations_path=None, optimizer: str | None = None, odometry=True,
                out_dir=None, limit=None, seed=0, config: SlamConfig | None = None,
                label="replay", schedule: str = "lockstep", before_scan=None, localize=None,
-               resume=None, start: int = 0, watch=None, session_changes=None):
+               resume=None, start: int = 0, watch=None, session_changes=None,
+               bag: BagOptions | None = None):
     """:func:`replay`, returning ``(metrics, runtime)``; ``before_scan(k, runtime)`` is called
     before scan ``k`` is processed (benchmarks use it to follow the run)."""
     try:
         return _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, seed,
                            config, label, schedule, before_scan, localize, resume, start, watch,
-                           session_changes)
+                           session_changes, bag)
     finally:
         if watch is not None:
             watch.close()
 
 
 def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, seed, config,
-                label, schedule, before_scan, localize, resume, start, watch, session_changes):
+                label, schedule, before_scan, localize, resume, start, watch, session_changes,
+                bag):
     if out_dir is not None:
         check_writable(out_dir)  # before the run, not after it
-    log = read_carmen(log_path)
+    log = read_log(log_path, bag, warn=lambda text: print(text, file=sys.stderr))
     if log.skipped:
         print(f"{log_path}: skipped {sum(log.skipped.values())} records ("
               + ", ".join(f"{n} with a bad {f}" for f, n in log.skipped.items()) + "): "
@@ -216,7 +220,6 @@ def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, s
         "loops_rejected_consistency": slam.back_end.loops.rejected_consistency,
         "matches_recovered": slam.front_end.lost_matches,
         "matches_degenerate": slam.front_end.degenerate_matches,
-        "odometry_scale": slam.front_end.odometry_scale.scale,  # learnt (1: not, or within doubt)
         **timing,
         "status": run_status(runtime.status, log, runtime),
         "runtime": runtime.report(),

@@ -3,7 +3,7 @@
 Walls are capsules (a segment with a radius, as pymunk's ``Segment`` shapes), so the caster
 returns what ``Space.segment_query_first`` returns — ``tests/test_sim_lidar.py`` checks the two
 agree — at a small fraction of its cost (per-beam queries from Python: ~2.6 ms per 360-beam
-scan; this: ~0.1 ms; README, "The simulator").
+scan; this: ~0.1 ms; docs/simulator.md).
 """
 
 from __future__ import annotations

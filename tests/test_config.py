@@ -151,3 +151,32 @@ def test_a_bad_config_file_is_a_clear_error_from_the_cli(tmp_path, capsys):
     path.write_text("[front_end]\nnode_distanse = 0.4\n")
     assert main(["replay", "nowhere.clf", "--config", str(path)]) == 2
     assert "bad.toml: front_end.node_distanse: unknown key" in capsys.readouterr().err
+
+
+def _shown_fields(argv, capsys) -> list[str]:
+    assert main(["config", "show", *argv]) == 0
+    return [line.split(" = ")[0] for line in capsys.readouterr().out.splitlines()
+            if " = " in line and not line.startswith("#")]
+
+
+def test_config_show_lists_at_most_100_fields_and_basic_at_most_20(capsys):
+    from swarmslam.runtime.config import BASIC_FIELDS, EXPERT_FIELDS, field_names
+
+    every = field_names()
+    assert (BASIC_FIELDS | EXPERT_FIELDS) <= set(every)  # no level names a field that is gone
+    assert not BASIC_FIELDS & EXPERT_FIELDS
+    assert len(_shown_fields([], capsys)) == len(every) - len(EXPERT_FIELDS) <= 100
+    assert len(_shown_fields(["--basic"], capsys)) == len(BASIC_FIELDS) <= 20
+    assert len(_shown_fields(["--all"], capsys)) == len(every)
+
+
+@pytest.mark.parametrize("level", ["basic", "standard"])
+def test_a_shorter_listing_is_a_valid_file_of_the_fields_it_shows(level):
+    """Read back over the preset, the listing gives the shown fields' values; what it leaves
+    out keeps the preset's."""
+    base = preset("rplidar-a2")
+    config = override(base, {"front_end.node_distance": 0.3, "loop_closure.wide_levels": 5})
+    back = from_toml(to_toml(config, level=level), base=base)
+    assert back.front_end.node_distance == 0.3  # basic: shown at every level
+    assert back.loop_closure.wide_levels == base.loop_closure.wide_levels  # internal: left out
+    assert back == override(config, {"loop_closure.wide_levels": base.loop_closure.wide_levels})

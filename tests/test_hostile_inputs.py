@@ -1,4 +1,4 @@
-"""Bad input never costs a run (issue 15): every file and device boundary answers hostile input
+"""Bad input never costs a run: every file and device boundary answers hostile input
 with a clear error naming the file (and line), or skips and counts a bad record — never a
 traceback, a segfault, ``Infinity`` in JSON, or a half-written output folder."""
 

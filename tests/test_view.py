@@ -1,5 +1,5 @@
 """Watching a run (rerun view and recording, MCAP), video of the simulator, benchmark plots and
-the output files' modes (issue 16)."""
+the output files' modes."""
 
 import base64
 import json

@@ -189,12 +189,9 @@ def run_case(case: Case, work: Path, config: SlamConfig | None = None, floor: bo
               "odometry_error_end_m": made["odometry_error_end_m"]}
     for label, oracle in (("", False), ("floor_", True)) if floor else (("", False),):
         run_config, hook = config, None
-        if oracle:  # a perfect match is never lost: nothing for the gate or the inlier test,
-            # and nothing odometry could add to its heading or learn of its scale
+        if oracle:  # a perfect match is never lost: nothing for the gate or the inlier test
             run_config = override(config or SlamConfig(), {"front_end.odometry_gate": None,
-                                                           "front_end.min_track_inliers": 0.0,
-                                                           "front_end.odometry_noise_window": 0,
-                                                           "front_end.odometry_scale_window": 0})
+                                                           "front_end.min_track_inliers": 0.0})
             hook = TruthOracle(stamps, truth)
         m, runtime = replay_run(log, made["relations"], None, case.use_odometry, None, None,
                                 case.seed, run_config,

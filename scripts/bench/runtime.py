@@ -12,7 +12,7 @@ budgeted schedule unless said):
 
 ``--soak MINUTES`` instead drives the runtime for that long on simulated scans
 (:class:`swarmslam.runtime.warm_up.LoopDrive`), sampling RSS and traced memory each minute.
-Targets (issue 6): 0 misses, p99 ≤ 20 ms, RSS growth ≤ 1 MB, 0 traced bytes per tick.
+Targets: 0 misses, p99 ≤ 20 ms, RSS growth ≤ 1 MB, 0 traced bytes per tick.
 """
 
 from __future__ import annotations
