@@ -324,7 +324,7 @@ class LoopClosureConfig(Section):
     search_radius: float = _setting(10.0, "m: candidates beyond this are never considered", gt=0)
     closure_spacing: int = _setting(
         0, "nodes after one where a loop closure was kept whose loop search is skipped "
-        "(0: every node is searched)", ge=0)
+        "(0: every node is searched; docs/method.md §5, step 0)", ge=0)
     exclude_recent: int = _setting(10, "nodes just behind the new one are neighbours, not loops",
                                    ge=1)
     max_candidates: int = _setting(8, "gated candidates kept, closest first", ge=1, le=10_000)
@@ -519,6 +519,11 @@ class LocalizationConfig(Section):
         0.3, "after confirm_seconds, a candidate with more than this share of its scan points "
         "off the saved surfaces is dropped whatever the others' (a wrong place seen from afar "
         "tracks, but misses many)", ge=0, le=1)
+    corridor_max_miss: float = _setting(
+        0.015, "a lone candidate no match has pinned along every direction (a place seen only "
+        "as a corridor) is committed when at most this share of its points fell off the saved "
+        "surfaces over the window; otherwise it is followed until a match pins it (a wrong "
+        "map's corridor fits worse: docs/method.md §9)", ge=0, le=1)
 
 
 @dataclass(frozen=True)
@@ -694,6 +699,35 @@ def to_dict(config) -> dict:
     return dataclasses.asdict(config)
 
 
+# Fields this version no longer has (docs/experiments/2026-11-25-fewer-knobs.md; commit
+# 449cba7 is the last with them) → the value that left their path off. A session or file
+# that names one with that value reads as before; with another, it needs the older version.
+REMOVED_FIELDS = {
+    "front_end.odometry_noise_window": 0, "front_end.odometry_noise_min_steps": None,
+    "front_end.odometry_turn_split": None, "front_end.odometry_sigma_floor": None,
+    "front_end.match_heading_sigma": None, "front_end.odometry_scale_window": 0,
+    "front_end.odometry_scale_min_steps": None, "front_end.odometry_scale_min_step": None,
+    "front_end.odometry_scale_max_turn": None, "front_end.odometry_scale_dead_zone": None,
+    "front_end.odometry_scale_confidence": None, "loop_closure.wide_total_gate": NONE,
+    "loop_closure.degenerate_share": "floor", "loop_closure.stale_turn_window": None}
+
+
+def _without_removed(data: dict, where: str) -> dict:
+    """``data`` less the removed fields it names; one set to what turned its path on is
+    refused by name. (None above: any value, its path being off by the other's.)"""
+    kept = {}
+    for key, value in data.items():
+        path = f"{where}.{key}" if where else key
+        if path not in REMOVED_FIELDS:
+            kept[key] = value
+        elif REMOVED_FIELDS[path] is not None and (NONE if value is None else value) \
+                != REMOVED_FIELDS[path]:
+            raise ConfigError(f"{path} = {value!r}: this opt-in was removed in this version "
+                              f"(docs/experiments/2026-11-25-fewer-knobs.md); remove the key, "
+                              f"or use commit 449cba7")
+    return kept
+
+
 def from_dict(data: dict, base=None, cls=SlamConfig, where: str = ""):
     """``base`` (default: ``cls()``) with the fields ``data`` names changed; nested tables
     change nested sections. Unknown keys and ill-typed values raise :class:`ConfigError`."""
@@ -703,7 +737,7 @@ def from_dict(data: dict, base=None, cls=SlamConfig, where: str = ""):
     hints = typing.get_type_hints(cls)
     meta = {f.name: f.metadata for f in fields(cls)}
     changes = {}
-    for key, value in data.items():
+    for key, value in _without_removed(data, where).items():
         path = f"{where}.{key}" if where else key
         if key not in meta:
             raise ConfigError(f"{path}: unknown key (valid: {', '.join(sorted(meta))})")

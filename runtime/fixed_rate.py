@@ -45,6 +45,7 @@ from swarmslam.runtime.step_result import StepResult
 from swarmslam.runtime.warm_up import LoopDrive
 
 PAGE = 4096  # bytes: commit_memory writes one byte per page
+RUNTIME_PACKAGE = __name__.rpartition(".")[0] + "."  # the core's objects hold its buffers
 
 
 class RuntimeStats:
@@ -121,7 +122,7 @@ def commit_memory(root, min_bytes: int = 1 << 16) -> int:
             continue
         if isinstance(obj, (list, tuple)):
             stack.extend(obj)
-        elif hasattr(obj, "__dict__") and type(obj).__module__.startswith("runtime"):
+        elif hasattr(obj, "__dict__") and type(obj).__module__.startswith(RUNTIME_PACKAGE):
             stack.extend(vars(obj).values())
     return total
 

@@ -274,9 +274,11 @@ class Localizer:
                 self._keep(lambda t: id(t) in near)
         if self.n_candidates == 0:
             self.phase = SEARCHING
-        elif self.n_candidates == 1 and self.trackers[0].pinned:
-            # (a place seen only as a corridor is not a place: the candidate is followed on
-            # until a match pins it along the corridor too — a wrong map's corridor never does)
+        elif self.n_candidates == 1 and (self.trackers[0].pinned or 1.0 - self.trackers[0]
+                                         .mean_fit <= lc.corridor_max_miss):
+            # (a place seen only as a corridor, fitting less than nearly perfectly, is not yet
+            # a place: the candidate is followed on until a match pins it along the corridor
+            # too — a wrong map's corridor never does)
             self._commit(0)
 
     def _keep(self, test) -> None:

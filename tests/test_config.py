@@ -13,6 +13,7 @@ from swarmslam.runtime.config import (
     SIMULATED_LIDARS,
     ConfigError,
     SlamConfig,
+    from_dict,
     from_toml,
     load_config,
     override,
@@ -180,3 +181,18 @@ def test_a_shorter_listing_is_a_valid_file_of_the_fields_it_shows(level):
     assert back.front_end.node_distance == 0.3  # basic: shown at every level
     assert back.loop_closure.wide_levels == base.loop_closure.wide_levels  # internal: left out
     assert back == override(config, {"loop_closure.wide_levels": base.loop_closure.wide_levels})
+
+
+def test_a_removed_field_left_off_reads_and_one_turned_on_is_refused_by_name():
+    """A session or file from the version that still had the opt-ins: their keys at the
+    values that left them off read as before; one that turned its path on needs that version."""
+    older = to_dict(SlamConfig())
+    older["front_end"].update(odometry_noise_window=0, match_heading_sigma=[0.0035, 0.014],
+                              odometry_scale_window=0, odometry_scale_dead_zone=0.0075)
+    older["loop_closure"].update(wide_total_gate="none", degenerate_share="floor",
+                                 stale_turn_window=0.6)
+    assert from_dict(older) == SlamConfig()
+    older["front_end"]["odometry_noise_window"] = 200
+    with pytest.raises(ConfigError, match=r"front_end.odometry_noise_window = 200: this opt-in "
+                                          r"was removed.*fewer-knobs"):
+        from_dict(older)

@@ -353,6 +353,37 @@ def test_a_place_whose_scans_miss_much_of_the_map_is_not_committed():
         assert 0.3 < 1.0 - localizer.trackers[0].mean_fit < 0.5  # tracked, missing many
 
 
+def test_a_place_seen_only_as_a_corridor_is_committed_only_when_it_fits_nearly_whole():
+    # A plain corridor longer than the scanner's reach: no match pins the robot along it. In
+    # the map it was made from, the scans fit it (no point off the walls) and the place is
+    # committed; in a corridor with half-metre door jambs the map does not have (a wrong
+    # map's corridor) the candidate tracks, missing ~12% of its points, and is not committed
+    # — unless corridor_max_miss is raised above that.
+    walls = np.array([[-30.0, -1.0, 30.0, -1.0], [-30.0, 1.0, 30.0, 1.0]])
+    jambs = np.array([[x, side, x, side * 0.5] for x in np.arange(-11.0, 15.0, 4.0)
+                      for side in (-1.0, 1.0)])
+    path = np.array([[0.1 * k, 0.0, 0.0] for k in range(40)])
+    saved = SavedMap(*map_from(walls, path[::5]), len(path[::5]))
+    script = {0: Located(path[0].copy(), 0.9)}
+    outcomes = {}
+    for name, world, allowed in (("own corridor", walls, 0.015),
+                                 ("corridor with doors", np.vstack([walls, jambs]), 0.015),
+                                 ("corridor with doors, rule relaxed",
+                                  np.vstack([walls, jambs]), 0.3)):
+        config = override(SlamConfig(), {"localization.corridor_max_miss": allowed})
+        localizer = Localizer(config, saved, seed=3)
+        _, committed = drive_scripted(localizer, world, path, script, 40)
+        tracker = localizer.trackers[0]
+        outcomes[name] = (committed, tracker.pinned, 1.0 - tracker.mean_fit,
+                          localizer.n_candidates)
+    committed, pinned, missed, _ = outcomes["own corridor"]
+    assert committed is not None and pinned == 0 and missed <= 0.015, outcomes
+    committed, pinned, missed, candidates = outcomes["corridor with doors"]
+    assert committed is None and candidates == 1 and pinned == 0, outcomes
+    assert 0.05 < missed < 0.3, outcomes  # tracked (not dropped), missing many
+    assert outcomes["corridor with doors, rule relaxed"][0] is not None, outcomes
+
+
 def test_a_corrupt_or_foreign_session_is_refused(saved_loop, tmp_path):
     path, _, _ = saved_loop
     bad = tmp_path / "bad.npz"

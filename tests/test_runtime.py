@@ -473,3 +473,17 @@ def test_the_same_seed_gives_the_same_run_compiled_or_loaded_from_the_cache(tmp_
     cli("replay", str(log), "--out", str(tmp_path / "warm"))
     cold = (tmp_path / "cold" / "trajectory.tum").read_bytes()
     assert cold == (tmp_path / "warm" / "trajectory.tum").read_bytes()
+
+
+def test_the_budgeted_runtime_commits_its_buffers_at_start_up():
+    """Every large preallocated array of the core is written once at start-up (so the
+    resident size does not grow as buffers fill): the node scans, the reference grids, the
+    factor. The walk finds the core's objects by their installed package name."""
+    small = override(SlamConfig(), {"capacity.max_nodes": 200, "capacity.max_edges": 800,
+                                    "capacity.max_scans": 1000})
+    budgeted = SlamRuntime(small)
+    slam = budgeted.slam
+    grids = slam.front_end.reference.field.nbytes + slam.back_end.reference.field.nbytes
+    assert budgeted.reserved_bytes >= slam.nodes.points.nbytes + grids
+    lockstep = SlamRuntime(override(small, {"runtime.schedule": "lockstep"}))
+    assert lockstep.reserved_bytes == 0  # the simulator's schedule: nothing committed
