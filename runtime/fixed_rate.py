@@ -38,7 +38,6 @@ from swarmslam.runtime.config import SensorConfig, SlamConfig, from_dict, overri
 from swarmslam.runtime.inbox import ScanInbox, real_array
 from swarmslam.runtime.localization import Localizer
 from swarmslam.runtime.map_tracking import SavedMap
-from swarmslam.runtime.resources import check_memory
 from swarmslam.runtime.scan import PointScan
 from swarmslam.runtime.slam import GraphSlam
 from swarmslam.runtime.step_result import StepResult
@@ -143,7 +142,6 @@ class SlamRuntime:
         """``saved_map``: localization mode — track in that map, never changing it
         (:class:`swarmslam.runtime.localization.Localizer`; ``initial_pose`` None: search for it)."""
         self.config = config or SlamConfig()
-        check_memory(self.config)  # before any buffer is allocated
         rc = self.config.runtime
         self.slam = (GraphSlam(self.config, seed=seed, initial_pose=initial_pose)
                      if saved_map is None else

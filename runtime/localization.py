@@ -35,6 +35,7 @@ from swarmslam.runtime.node_scans import NodeScans
 from swarmslam.runtime.occupancy_grid import OccupancyGrid
 from swarmslam.runtime.pose import between, compose, inverse
 from swarmslam.runtime.relocalization import Located, Relocalizer
+from swarmslam.runtime.resources import check_memory
 from swarmslam.runtime.scan import PointScan
 from swarmslam.runtime.scan_matcher import ScanMatcher
 from swarmslam.runtime.step_result import StepResult
@@ -47,6 +48,7 @@ class Localizer:
     tracking starts at once); None: the first scans are searched for."""
 
     def __init__(self, config: SlamConfig, saved: SavedMap, seed: int = 0, initial_pose=None):
+        check_memory(config)  # before any buffer is allocated
         self.config, self.saved, self.seed = config, saved, seed
         self.relocalizer = Relocalizer(config, saved.poses, saved.nodes, saved.n_nodes, seed)
         self.matcher = ScanMatcher(config.matcher, seed=seed + 1)  # (as reset reseeds them)

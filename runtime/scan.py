@@ -133,3 +133,17 @@ class PointScan:
 def beam_angles(count: int, first: float, last: float) -> np.ndarray:
     """Evenly spaced beam angles from ``first`` to ``last`` inclusive (rad)."""
     return np.linspace(first, last, count)
+
+
+def binned_ranges(angles, ranges, bins: int, no_return: float) -> np.ndarray:
+    """Ranges in ``bins`` equal angle bins over a full turn, bin ``k`` centred on
+    −π + 2πk/bins (a LaserScan's beams): of several in one bin the nearest, ``no_return``
+    where none."""
+    out = np.full(bins, no_return, np.float64)
+    if len(ranges) == 0:
+        return out
+    k = np.floor((np.asarray(angles) + math.pi) / (2 * math.pi) * bins
+                 + 0.5).astype(np.int64) % bins
+    order = np.argsort(-np.asarray(ranges), kind="stable")  # nearest written last: it wins
+    out[k[order]] = np.asarray(ranges)[order]
+    return out

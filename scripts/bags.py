@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from swarmslam.runtime.scan import binned_ranges
 from swarmslam.carmen import CarmenLog, LaserRecord, OdometryRecord
 
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
@@ -722,11 +723,7 @@ class BagRecorder:
 
 
 def bin_ranges(angles, ranges, bins: int, max_range: float) -> np.ndarray:
-    """Ranges binned by angle over a full turn from −π: the nearest valid return in each bin,
-    ``inf`` where none (no return)."""
-    out = np.full(bins, np.inf)
+    """A rotation's valid returns binned by angle over a full turn (bin ``k`` centred on the
+    LaserScan beam −π + 2πk/bins): the nearest in each bin, ``inf`` where none (no return)."""
     valid = np.isfinite(ranges) & (ranges > 0) & (ranges < max_range) & np.isfinite(angles)
-    k = np.floor((np.mod(angles[valid] + math.pi, 2 * math.pi)) / (2 * math.pi / bins))
-    k = np.clip(k.astype(np.int64), 0, bins - 1)
-    np.minimum.at(out, k, ranges[valid])
-    return out
+    return binned_ranges(angles[valid], ranges[valid], bins, np.inf)

@@ -26,6 +26,7 @@ import math
 import numpy as np
 from mcap.writer import Writer
 
+from swarmslam.runtime.scan import binned_ranges
 from swarmslam.runtime.writers import AtomicFile
 
 _TIME = {"type": "object", "properties": {"sec": {"type": "integer", "minimum": 0},
@@ -84,15 +85,8 @@ def _pose(x: float, y: float, theta: float) -> dict:
 def laser_ranges(points, bins: int) -> np.ndarray:
     """The scan's points (robot frame) as ranges in ``bins`` equal angle bins from −π
     (0: no point in the bin; of several, the nearest)."""
-    ranges = np.zeros(bins)
-    if len(points) == 0:
-        return ranges
-    r = np.hypot(points[:, 0], points[:, 1])
-    k = np.floor((np.arctan2(points[:, 1], points[:, 0]) + math.pi) / (2 * math.pi) * bins
-                 + 0.5).astype(np.int64) % bins
-    order = np.argsort(-r, kind="stable")  # nearest written last, so it wins
-    ranges[k[order]] = r[order]
-    return ranges
+    return binned_ranges(np.arctan2(points[:, 1], points[:, 0]),
+                         np.hypot(points[:, 0], points[:, 1]), bins, 0.0)
 
 
 class McapRecording:
