@@ -33,6 +33,9 @@ class WorldSource:
         self.sim = self.env.unwrapped
         _, self.info = self.env.reset(seed=seed)
         self.policy = FrontierExplorer.for_env(self.env)
+        # compile the planner now: a first rotation that waits on it would stall the device for
+        # most of a second, and its stream would then catch up in a burst no scanner sends
+        self.policy.plan(self.sim.true_pose, self.sim.map)
         self.rng = np.random.default_rng(seed)
         self.range_noise = range_noise
         self.still_before = still_before
