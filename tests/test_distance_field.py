@@ -3,7 +3,8 @@
 import numpy as np
 from scipy.spatial import cKDTree
 
-from swarmslam.runtime.distance_field import N_META, NX, NY, build_distance_field, field_lookup
+from swarmslam.runtime.distance_field import (N_META, NX, NY, build_distance_field, field_lookup,
+                                               splat_segment)
 
 
 def build(points, res=0.05, radius=0.5, gap=0.0, cells=512, inv_c2=0.0, bend=0.0,
@@ -25,6 +26,28 @@ def test_point_field_matches_kdtree_within_interpolation_error():
     # Bilinear interpolation of d² on 5 cm nodes: error of order the cell size.
     assert np.max(np.abs(got - exact)) < 0.05
     assert np.median(np.abs(got - exact)) < 0.01
+
+
+def test_a_segment_lowers_every_node_within_its_radius_to_its_exact_squared_distance():
+    # against every node of the window, by the same arithmetic: points, axis-parallel and
+    # slanted segments, ones reaching past the window's edges
+    rng = np.random.default_rng(4)
+    ny, nx = 40, 50
+    for trial in range(400):
+        res, radius = rng.choice([0.05, 0.1, 0.037]), rng.choice([0.5, 0.3, 0.05])
+        ox, oy = rng.uniform(-1.0, 1.0, 2)
+        a = rng.uniform(-1.0, 3.0, 2)
+        b = [a, a + [rng.uniform(-2, 2), 0.0], a + [0.0, rng.uniform(-2, 2)],
+             a + rng.uniform(-0.1, 0.1, 2), rng.uniform(-2.0, 4.0, 2)][trial % 5]
+        field = np.full((ny, nx), radius * radius)
+        splat_segment(a[0], a[1], b[0], b[1], ox, oy, res, radius, nx, ny, field)
+        cx = ox + np.arange(nx)[None, :] * res
+        cy = oy + np.arange(ny)[:, None] * res
+        ux, uy = b[0] - a[0], b[1] - a[1]
+        uu = ux * ux + uy * uy
+        t = np.clip(((cx - a[0]) * ux + (cy - a[1]) * uy) / uu, 0.0, 1.0) if uu > 0 else 0.0
+        d2 = (a[0] + t * ux - cx) ** 2 + (a[1] + t * uy - cy) ** 2
+        assert np.array_equal(field, np.where(d2 < radius * radius, d2, radius * radius)), trial
 
 
 def test_truncated_at_radius_and_outside_window():
