@@ -101,12 +101,13 @@ class Lidar:
         """A measured scan: noisy ranges, ``max_range`` for every beam without a return."""
         c = self.config
         r = self.cast(pose, self.ranges)
-        if c.noise_std > 0:
+        if c.noise_std > 0:  # (in place: no temporary array per scan)
             rng.standard_normal(out=self._noise)
-            r += c.noise_std * self._noise
+            self._noise *= c.noise_std
+            r += self._noise
         if c.dropout > 0:
             rng.random(out=self._drop)
-            r[self._drop < c.dropout] = np.inf
+            np.copyto(r, np.inf, where=self._drop < c.dropout)
         no_return(r, c.min_range, c.max_range)
         return r
 

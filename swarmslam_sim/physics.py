@@ -16,6 +16,8 @@ import pymunk
 from swarmslam_sim.world import World
 
 WALL, ROBOT = 1, 2
+_SET_VELOCITY = pymunk.Body.velocity.fset
+_SET_ANGULAR_VELOCITY = pymunk.Body.angular_velocity.fset
 SUBSTEP = 0.05  # s, the longest physics step (2.5 cm at 0.5 m/s, far less than the radius)
 
 
@@ -42,9 +44,11 @@ class Robot:
         self.linear, self.angular = float(linear), float(angular)
 
     def _drive(self, body, gravity, damping, dt):
-        # no lateral slip: the wheels push along the heading only
-        body.velocity = (self.linear * math.cos(body.angle), self.linear * math.sin(body.angle))
-        body.angular_velocity = self.angular
+        # no lateral slip: the wheels push along the heading only (the properties' setters
+        # called directly: pymunk's __setattr__ hook, there for type checkers, costs as much)
+        angle = body.angle
+        _SET_VELOCITY(body, (self.linear * math.cos(angle), self.linear * math.sin(angle)))
+        _SET_ANGULAR_VELOCITY(body, self.angular)
 
     @property
     def pose(self) -> np.ndarray:
