@@ -121,9 +121,11 @@ def run_live(port: str, model: str = "a1", mode: str = "typical", out_dir="swarm
             pose = rt.pose()
             graph = (f"saved {r['saved_nodes']:4d} lost {r['lost']:3d}" if rt.localizing else
                      f"nodes {r['nodes']:4d} loops {r['loops_accepted']:3d}")
+            # a lockstep schedule never reads the clock, so it has no latencies to show
+            p99 = (f"{r['latency_ms_p99']:5.1f} ms" if rt.config.runtime.schedule == "budgeted"
+                   else "  n/a (lockstep)")
             echo(f"{rate:4.1f} scans/s  pose {pose[0]:7.2f} {pose[1]:7.2f} {pose[2]:6.2f}  "
-                 f"{graph}  p99 "
-                 f"{r['latency_ms_p99']:5.1f} ms  misses {r['deadline_misses']}  stale "
+                 f"{graph}  p99 {p99}  misses {r['deadline_misses']}  stale "
                  f"{r['stale_scans']}  checksum {s['checksum_errors']} resync {s['resyncs']} "
                  f"timeouts {s['timeouts']} reconnects {s['reconnects']}  {status}"
                  + (f"  {rt.inbox.skipped()}" if rt.inbox.skipped() else ""))
