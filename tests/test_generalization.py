@@ -293,3 +293,19 @@ def test_a_full_case_name_makes_any_case_and_a_part_picks_from_the_suite():
     assert parse_case("building-sick-9-10hz-good-s1") is None  # no such scanner
     with pytest.raises(ValueError, match="full name"):
         select(["nothing"])
+
+
+def test_the_suite_draws_its_plots_from_the_cases_it_ran(tmp_path, monkeypatch):
+    # the cases themselves stand in (a real one takes a minute): what is drawn is the point
+    import swarmslam.bench.generalization as generalization
+
+    def run_case(case, folder, config, floor, echo):
+        return {"case": case.name, "eT": 0.01 + case.seed, "ate_rmse_m": 0.02, "floor_eT": 0.005,
+                "eT_over_floor": 2.0, "loop_precision": 1.0, "loop_recall": 0.5}
+
+    monkeypatch.setattr(generalization, "run_case", run_case)
+    results = generalization.bench_generalization(CASES[:2], plots=tmp_path,
+                                                  echo=lambda text: None)
+    assert [r["case"] for r in results["cases"]] == [c.name for c in CASES[:2]]
+    for name in ("generalization-errors", "generalization-loops"):
+        assert (tmp_path / f"{name}.png").stat().st_size > 0

@@ -229,6 +229,7 @@ def bench_generalization(cases=CASES, json_path=None, work=None, config=None, fl
     for group, summary in results["summary"].items():
         echo(f"{group}: {format_summary(summary)}")
     if plots:
+        runs = results["cases"]
         names = [r["case"] for r in runs]
         errors = {"eT (m)": dict(zip(names, (r["eT"] for r in runs))),
                   "ATE RMSE (m)": dict(zip(names, (r["ate_rmse_m"] for r in runs)))}
