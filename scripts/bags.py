@@ -36,7 +36,8 @@ from pathlib import Path
 import numpy as np
 
 from swarmslam.runtime.scan import binned_ranges
-from swarmslam.carmen import CarmenLog, LaserRecord, OdometryRecord
+from swarmslam.carmen import (ODOMETRY_MAX_GAP, CarmenLog, LaserRecord, OdometryRecord,
+                              pose_between)
 
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
 ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
@@ -44,7 +45,6 @@ TF_TYPE = "tf2_msgs/msg/TFMessage"
 FORMATS = ("ros1", "sqlite3", "mcap")
 MAX_DENOMINATOR = 7200  # angles snapped to fractions of π with at most this denominator
 DECIMAL_PLACES = 6  # ... unless written as a decimal of at most this many places
-ODOMETRY_MAX_GAP = 0.5  # s: odometry readings farther apart bracket no scan
 TF_MESSAGE_ROS1 = "geometry_msgs/TransformStamped[] transforms\n"
 
 
@@ -476,15 +476,10 @@ def odometry_at(times, poses, stamp: float) -> np.ndarray:
     """Odometry at ``stamp``: a reading stamped so, or the two around it (within
     ODOMETRY_MAX_GAP) interpolated; NaN when none brackets it (the scan goes without)."""
     k = int(np.searchsorted(times, stamp, side="right")) - 1
-    if k >= 0 and times[k] == stamp:
-        return poses[k].copy()
-    if k < 0 or k + 1 >= len(times) or times[k + 1] - times[k] > ODOMETRY_MAX_GAP:
+    if k < 0 or (times[k] != stamp and (k + 1 >= len(times)
+                                        or times[k + 1] - times[k] > ODOMETRY_MAX_GAP)):
         return np.full(3, np.nan)
-    share = (stamp - times[k]) / (times[k + 1] - times[k])
-    turn = math.remainder(poses[k + 1, 2] - poses[k, 2], 2 * math.pi)
-    pose = poses[k] + share * (poses[k + 1] - poses[k])
-    pose[2] = math.remainder(poses[k, 2] + share * turn, 2 * math.pi)
-    return pose
+    return pose_between(times, poses, k, stamp)
 
 
 def _laser(message, mount: Mount, index: int) -> LaserRecord | str:

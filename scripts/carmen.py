@@ -347,17 +347,23 @@ def odometry_at_scans(lasers, odometry, max_gap: float = ODOMETRY_MAX_GAP) -> in
         k = int(np.searchsorted(times, r.timestamp, side="right")) - 1
         if k < 0 or k + 1 >= len(times) or times[k + 1] - times[k] > max_gap:
             continue
-        if times[k] == r.timestamp:
-            pose = poses[k].copy()
-        else:
-            share = (r.timestamp - times[k]) / (times[k + 1] - times[k])
-            turn = math.remainder(poses[k + 1, 2] - poses[k, 2], 2 * math.pi)
-            pose = poses[k] + share * (poses[k + 1] - poses[k])
-            pose[2] = math.remainder(poses[k, 2] + share * turn, 2 * math.pi)
+        pose = pose_between(times, poses, k, r.timestamp)
         if not np.array_equal(pose, r.odometry):
             changed += 1
         r.odometry = pose
     return changed
+
+
+def pose_between(times, poses, k: int, stamp: float) -> np.ndarray:
+    """Odometry at ``stamp`` from readings ``k`` and ``k + 1`` (``times[k] <= stamp``): reading
+    ``k`` when stamped so, else the two interpolated, the heading along the shorter turn."""
+    if times[k] == stamp:
+        return poses[k].copy()
+    share = (stamp - times[k]) / (times[k + 1] - times[k])
+    turn = math.remainder(poses[k + 1, 2] - poses[k, 2], 2 * math.pi)
+    pose = poses[k] + share * (poses[k + 1] - poses[k])
+    pose[2] = math.remainder(poses[k, 2] + share * turn, 2 * math.pi)
+    return pose
 
 
 def _num(v: float) -> str:
