@@ -808,7 +808,7 @@ def build_parser() -> argparse.ArgumentParser:
     bg.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
     bg.add_argument("--datasets", default="intel", help="logs converted and replayed")
     bg.add_argument("--repeats", type=_at_least_one, default=3, help="reads timed per bag")
-    _bench_outputs(bg)
+    bg.add_argument("--json", help="write results here (atomically)")  # (it draws nothing)
     bg.set_defaults(func=_bench_bags)
     br = bsub.add_parser("report", help="write docs/results.md and the README's results block "
                                          "from bench-results/*.json")
