@@ -496,9 +496,8 @@ def _laser(message, mount: Mount, index: int) -> LaserRecord | str:
     if not (math.isfinite(high) and high > 0):
         return "range_max"
     # REP 117: inf is no return, -inf too near, NaN no reading; outside the scanner's span
-    # likewise no reading
-    ranges[~np.isfinite(ranges) | (ranges < low) | (ranges > high)] = np.nan
-    ranges[ranges == high] = np.nan
+    # likewise no reading, and range_max itself is how many drivers write no return
+    ranges[~np.isfinite(ranges) | (ranges < low) | (ranges >= high)] = np.nan
     angles = start + step * np.arange(n)
     if mount.mirrored:
         angles = -angles

@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 
 from swarmslam.runtime.pose import between, compose
 from swarmslam.runtime.warm_up import loop_path, room_world, scan_at
-from swarmslam.bags import BagError, BagWriter, read_bag, write_bag
+from swarmslam.bags import BagError, BagWriter, read_bag
 from swarmslam.carmen import flaser_angles, read_carmen
 from swarmslam.cli import main
 from swarmslam.replay import replay_run
