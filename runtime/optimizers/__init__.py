@@ -32,7 +32,7 @@ DEFAULT_MEMBERS = {PSO: 50, ABC: 20, FA: 20}
 _MODULES = {PSO: pso, ABC: bee_colony, FA: firefly}
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def start(kind, ws):
     """Scatter the swarm over the box ``ws.lo``–``ws.hi``; call after :func:`reset_run`."""
     if kind == PSO:
@@ -43,7 +43,7 @@ def start(kind, ws):
         firefly.fa_start(ws)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def ask(kind, ws):
     """Write the next candidates into ``ws.cand``; return how many."""
     if kind == PSO:
@@ -53,7 +53,7 @@ def ask(kind, ws):
     return firefly.fa_ask(ws)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def tell(kind, ws, m):
     """Take the values of the ``m`` candidates from ``ws.cand_val``; True when halted."""
     ws.scal[EVALUATIONS] += m

@@ -22,13 +22,15 @@ DEFAULTS = (10.0,)
 _INIT, _EMPLOYED, _ONLOOKER, _SCOUT = 0.0, 1.0, 2.0, 3.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def abc_start(ws):
     ws.scal[PHASE] = _INIT
 
 
 # Helpers take the arrays they use, not the workspace: passing the 15-array workspace down
-# a call chain costs more in reference counting than the helper's work.
+# a call chain costs more in reference counting than the helper's work. The phases that do
+# take it are inlined into the caller's loop for the same reason (with ``ask``/``tell``: an
+# alignment's ~3,700 evaluations spent 0.8 ms outside the objective, 0.4 ms inlined).
 @njit(cache=True, inline="always")
 def _random_source(cand, row, lo, hi, rng):
     """Eq. 9: ``x_j = l_j + r·(u_j − l_j)``."""
@@ -50,7 +52,7 @@ def _neighbour(pos, cand, row, i, lo, hi, rng):
     cand[row, j] = clip(pos[i, j] + phi * (pos[i, j] - pos[k, j]), lo[j], hi[j])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _ask_init(ws):
     n = ws.pos.shape[0]
     for i in range(n):
@@ -59,7 +61,7 @@ def _ask_init(ws):
     return n
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _ask_employed(ws):
     n = ws.pos.shape[0]
     pos, cand, lo, hi, rng = ws.pos, ws.cand, ws.lo, ws.hi, ws.rng
@@ -69,7 +71,7 @@ def _ask_employed(ws):
     return n
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _ask_onlooker(ws):
     # Eq. 10 with fitness 1/(1+f) for f >= 0 (1+|f| below zero), as in Karaboga's code.
     n = ws.pos.shape[0]
@@ -90,7 +92,7 @@ def _ask_onlooker(ws):
     return n
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _ask_scout(ws):
     # The most-tried source beyond the limit is abandoned and re-initialised.
     worst = -1
@@ -107,7 +109,7 @@ def _ask_scout(ws):
     return 1
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def abc_ask(ws):
     phase = ws.scal[PHASE]
     if phase == _INIT:
@@ -134,7 +136,7 @@ def _greedy(pos, val, trials, cand, cand_val, cand_idx, row, scal, best):
         trials[i] += 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def abc_tell(ws, m):
     phase = ws.scal[PHASE]
     if phase == _INIT or phase == _SCOUT:
