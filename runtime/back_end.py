@@ -57,7 +57,7 @@ class BackEnd:
         # a loop's guess is the graph's estimate, never trusted as a prediction
         self.matcher = ScanMatcher(replace(config.matcher, guess_window=lc.search_window,
                                            predict_first=0.0),
-                                   seed=seed, capacity=config.sensor.max_points)
+                                   seed=seed)
         self.reference = self.matcher.new_reference()
         points = config.sensor.max_points
         self._scan = PointScan(points)

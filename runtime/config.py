@@ -179,10 +179,6 @@ class MatcherConfig(Section):
     coarse_resolution: float = _setting(0.1, "m, the global stage's coarse field (0: none)", ge=0)
     coarse_radius: float = _setting(0.6, "m, truncation of the coarse field", gt=0)
     stride: int = _setting(2, "the global stage uses every stride-th point", ge=1)
-    matched_points: int = _setting(
-        200, "a scan with more points is matched on about this many: those at least a spacing "
-        "apart along it, the widest that keeps this many (docs/method.md §3); 0: every point",
-        ge=0)
     refine_evaluations: int = _setting(600, "budget of the local stage (0: none)", ge=0,
                                       le=10_000_000)
     refine_window: tuple[float, float, float] = _setting(
@@ -819,7 +815,6 @@ EXPERT_FIELDS = frozenset({
     "front_end.stale_turn_window", "front_end.degenerate_information",
     "front_end.odometry_gate_share", "front_end.odometry_gate_fit",
     "matcher.surface_bend", "matcher.surface_gap_ratio", "matcher.coarse_radius",
-    "matcher.matched_points",
     "matcher.polish_step", "matcher.polish_halvings", "matcher.polish_evaluations",
     "matcher.grid_cells", "matcher.occupied_radius", "matcher.robot_diameter",
     "matcher.predict_first", "matcher.swarm.stagnation_tol", "matcher.swarm.target_value",

@@ -74,7 +74,7 @@ class FrontEnd:
                              else np.array(initial_pose, dtype=np.float64))
         points = config.sensor.max_points
         submap_nodes = config.front_end.submap_nodes
-        self.matcher = ScanMatcher(config.matcher, seed=seed, capacity=points)
+        self.matcher = ScanMatcher(config.matcher, seed=seed)
         g = config.matcher.guess_window  # a lost match's box after a stale reading
         self._turn_window = np.array([g[0], g[1], max(g[2], config.front_end.stale_turn_window)])
         self.reference = self.matcher.new_reference()

@@ -51,8 +51,7 @@ class Localizer:
         check_memory(config)  # before any buffer is allocated
         self.config, self.saved, self.seed = config, saved, seed
         self.relocalizer = Relocalizer(config, saved.poses, saved.nodes, saved.n_nodes, seed)
-        self.matcher = ScanMatcher(config.matcher, seed=seed + 1,  # (as reset reseeds them)
-                                   capacity=config.sensor.max_points)
+        self.matcher = ScanMatcher(config.matcher, seed=seed + 1)  # (as reset reseeds them)
         self.trackers = [MapTracker(saved, self.matcher, config)
                          for _ in range(config.relocalization.max_hypotheses)]
         self.n_candidates = 0  # trackers[:n_candidates] follow live hypotheses

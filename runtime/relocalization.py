@@ -143,7 +143,7 @@ class Relocalizer:
         self.cell_radius = int(math.ceil(rc.distinct_distance / rc.resolution))
         self.matcher = ScanMatcher(replace(config.matcher, guess_window=rc.refine_window,
                                            predict_first=0.0),
-                                   seed=seed, capacity=config.sensor.max_points)
+                                   seed=seed)
         self.reference = self.matcher.new_reference()
         self._submap = PointScan(config.sensor.max_points * rc.refine_nodes)
         self.blocks_scored = 0  # by the last search (blocks and refined poses)

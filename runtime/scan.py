@@ -56,48 +56,6 @@ def finite_points(points, count, out):
     return n
 
 
-@njit(cache=True)
-def thin_points(points, count, spacing, out):
-    """Copy into ``out`` the points of ``points[:count]`` at least ``spacing`` (m) from the
-    last one copied, in order along the scan; return how many (``out=None``: only count)."""
-    n = 0
-    last_x = last_y = 0.0
-    s2 = spacing * spacing
-    for i in range(count):
-        x, y = points[i, 0], points[i, 1]
-        if n > 0 and (x - last_x) * (x - last_x) + (y - last_y) * (y - last_y) < s2:
-            continue
-        if out is not None:
-            out[n, 0] = x
-            out[n, 1] = y
-        last_x, last_y = x, y
-        n += 1
-    return n
-
-
-@njit(cache=True)
-def thin_to(points, count, target, out):
-    """``points[:count]`` thinned into ``out`` by :func:`thin_points` at the widest spacing
-    (to 1 mm, at most 1 m) that keeps at least ``target`` points, or copied whole when there
-    are no more than that; return how many.
-    Near a scanner its beams crowd: 0.5° beams lie 1.7 cm apart at 2 m, where a 1° scanner's
-    lie 3.5 cm apart. Thinning by distance drops points there and keeps the far ones, whose
-    lever arm fixes the heading (docs/method.md §3)."""
-    if count <= target:
-        out[:count] = points[:count]
-        return count
-    lo, hi = 0.0, 1.0
-    if thin_points(points, count, hi, None) < target:
-        while hi - lo > 0.001:
-            mid = 0.5 * (lo + hi)
-            if thin_points(points, count, mid, None) >= target:
-                lo = mid
-            else:
-                hi = mid
-        hi = lo
-    return thin_points(points, count, hi, out)
-
-
 class PointScan:
     """A scan's valid points in its sensor frame, in a buffer allocated once.
 

@@ -31,7 +31,7 @@ from swarmslam.runtime.objectives import (
 )
 from swarmslam.runtime.optimizers import SwarmOptimizer, ask, start, tell
 from swarmslam.runtime.optimizers.workspace import BEST_VAL, EVALUATIONS, ITERATION, reset_run
-from swarmslam.runtime.scan import PointScan, thin_to
+from swarmslam.runtime.scan import PointScan
 from swarmslam.runtime.threshold import RejectionThreshold
 
 # Layout of the ``settings`` array handed to the compiled kernel.
@@ -243,10 +243,7 @@ def align_kernel(
 class ScanMatcher:
     """Aligns scans with a swarm optimizer (Alg. 5); one instance per stream of scans."""
 
-    def __init__(self, config: MatcherConfig | None = None, seed: int = 0,
-                 capacity: int = 2048):
-        """``capacity``: the most points of a dense scan thinned for matching (those beyond it
-        are left out, as the node store leaves them)."""
+    def __init__(self, config: MatcherConfig | None = None, seed: int = 0):
         self.config = config or MatcherConfig()
         c = self.config
         self.optimizer = SwarmOptimizer(c.swarm, dim=3, seed=seed)
@@ -277,7 +274,6 @@ class ScanMatcher:
         self._out = np.zeros(N_OUT)
         self._box = np.zeros((2, 3))
         self._hessian = np.zeros((3, 3))
-        self._thinned = np.zeros((capacity, 2))  # a dense scan's points matched
 
     def state(self) -> dict:
         """The swarm's random stream and buffers, and the rejection threshold."""
@@ -380,16 +376,11 @@ class ScanMatcher:
         c, t = self.config, self.threshold
         self.settings[S_PREDICT] = (c.predict_first * t.mean if c.predict_first > 0
                                     and guess is not None and t.count > 1 else 0.0)
-        points, n = scan.buffer, scan.count
-        if 0 < c.matched_points < n:  # a dense scan: its cost grows no further with its beams
-            n = thin_to(points, min(n, self._thinned.shape[0]), c.matched_points,
-                        self._thinned)
-            points = self._thinned
         align_kernel(
             self.optimizer.kind,
             self.optimizer.ws,
-            points,
-            n,
+            scan.buffer,
+            scan.count,
             reference.field,
             reference.grid,
             reference.meta,
