@@ -430,11 +430,11 @@ class RelocalizationConfig(Section):
         0.5, "m per cell of the first pass's hit grid on a map over exact_max_cells (the "
         "exhaustive search runs there, its candidates are refined at resolution)", gt=0)
     coarse_hit_sigma: float = _setting(0.4, "m: hit_sigma of the first pass's grid", gt=0)
-    coarse_points: int = _setting(32, "query points of the first pass at most (thinned evenly)",
+    coarse_points: int = _setting(24, "query points of the first pass at most (thinned evenly)",
                                   ge=3)
     coarse_min_score: float = _setting(0.6, "mean hit value (0-1) a first-pass candidate needs",
                                        gt=0, le=1)
-    coarse_ratio: float = _setting(0.85, "first-pass candidates score at least this share of "
+    coarse_ratio: float = _setting(0.9, "first-pass candidates score at least this share of "
                                    "its best", gt=0, le=1)
     coarse_candidates: int = _setting(64, "first-pass candidates refined at most (the best "
                                       "distinct ones)", ge=1)
