@@ -388,6 +388,10 @@ class LoopClosureConfig(Section):
     wide_resolution: float = _setting(0.4, "m per cell of the wide search's hit grid", gt=0)
     wide_hit_sigma: float = _setting(0.2, "m: a point this far from a surface scores e^(-1/2)",
                                      gt=0)
+    wide_surface_tolerance: float = _setting(
+        0.04, "m: a run of a node scan's joined points is drawn into the wide search's hit grid "
+        "as one segment while it passes this near every point it skips (0: one segment per "
+        "pair of points)", ge=0)
     wide_levels: int = _setting(6, "pyramid levels above the hit grid (blocks of 2^levels cells)",
                                 ge=1, le=10)
     wide_query_range: float = _setting(12.0, "m: the query's points farther from the node are "
@@ -824,7 +828,8 @@ EXPERT_FIELDS = frozenset({
     "loop_closure.degenerate_information", "loop_closure.wide_min_gap",
     "loop_closure.wide_drift", "loop_closure.wide_max_radius", "loop_closure.wide_turn_drift",
     "loop_closure.wide_max_angle", "loop_closure.wide_resolution", "loop_closure.wide_hit_sigma",
-    "loop_closure.wide_levels", "loop_closure.wide_query_range", "loop_closure.wide_query_nodes",
+    "loop_closure.wide_surface_tolerance", "loop_closure.wide_levels",
+    "loop_closure.wide_query_range", "loop_closure.wide_query_nodes",
     "loop_closure.wide_query_points", "loop_closure.wide_ratio",
     "loop_closure.wide_distinct_distance", "loop_closure.wide_agreement",
     "loop_closure.wide_refine_window", "loop_closure.wide_slice_cells",

@@ -67,10 +67,15 @@ def clear_distances(d2, sigma, first, last):
 
 @njit(cache=True)
 def splat_scans(points, counts, poses, index, first, last, max_range, max_gap, ox, oy, res,
-                sigma, d2):
+                sigma, d2, tolerance=0.0):
     """The scans of nodes ``index[first:last]`` splatted into ``d2`` (each cell the least
     squared distance to a surface, within ``3·sigma``); points beyond ``max_range`` of their
-    node are left out, consecutive points closer than ``max_gap`` joined."""
+    node are left out, consecutive points closer than ``max_gap`` joined.
+
+    With ``tolerance`` > 0 a run of joined points is drawn as one segment (no longer than the
+    splat's reach) while every point it skips lies within ``tolerance`` of it: a dense scan's
+    wall costs a few splats instead of one per beam, and no distance moves by more than
+    ``tolerance`` (docs/method.md §5, step 5). With 0 every pair is its own segment."""
     ny, nx = d2.shape
     radius = 3.0 * sigma
     gap2 = max_gap * max_gap
@@ -79,20 +84,66 @@ def splat_scans(points, counts, poses, index, first, last, max_range, max_gap, o
         m = index[e]
         c, s = math.cos(poses[m, 2]), math.sin(poses[m, 2])
         n = counts[m]
-        for p in range(n):
+        covered = False  # the point ends the segment drawn last
+        p = 0
+        while p < n:
             px, py = points[m, p, 0], points[m, p, 1]
             if px * px + py * py > reach2:
+                p += 1
+                covered = False
                 continue
-            qx, qy = px, py
-            if p + 1 < n:
-                dx, dy = points[m, p + 1, 0] - px, points[m, p + 1, 1] - py
-                if dx * dx + dy * dy < gap2:
-                    qx, qy = points[m, p + 1, 0], points[m, p + 1, 1]
+            q = chain_end(points[m], n, p, gap2, reach2, tolerance, radius)
+            if q == p and covered and tolerance > 0.0:  # drawn already, as a segment's end
+                p += 1
+                covered = False
+                continue
+            qx, qy = points[m, q, 0], points[m, q, 1]
             ax = poses[m, 0] + c * px - s * py - ox
             ay = poses[m, 1] + s * px + c * py - oy
             bx = poses[m, 0] + c * qx - s * qy - ox
             by = poses[m, 1] + s * qx + c * qy - oy
             splat_segment(ax, ay, bx, by, 0.0, 0.0, res, radius, nx, ny, d2)
+            covered = q > p
+            p = q if q > p else p + 1
+
+
+@njit(cache=True, inline="always")
+def chain_end(pts, n, p, gap2, reach2, tolerance, length):
+    """The last point of the segment drawn from point ``p``: ``p`` itself when the next point
+    is not joined to it (``gap2``); else the farthest point of the joined run (each joined
+    point within ``reach2`` of the sensor but the last) whose chord from ``p`` is at most
+    ``length`` long and passes within ``tolerance`` of every point between (0: the next)."""
+    if p + 1 >= n:
+        return p
+    dx, dy = pts[p + 1, 0] - pts[p, 0], pts[p + 1, 1] - pts[p, 1]
+    if dx * dx + dy * dy >= gap2:
+        return p
+    end = p + 1
+    if tolerance <= 0.0:
+        return end
+    tol2 = tolerance * tolerance
+    len2 = length * length
+    ax, ay = pts[p, 0], pts[p, 1]
+    while end + 1 < n:
+        ex, ey = pts[end, 0], pts[end, 1]
+        if ex * ex + ey * ey > reach2:
+            break  # beyond the range the next segment would not be drawn
+        q = end + 1
+        dx, dy = pts[q, 0] - ex, pts[q, 1] - ey
+        if dx * dx + dy * dy >= gap2:
+            break
+        ux, uy = pts[q, 0] - ax, pts[q, 1] - ay
+        uu = ux * ux + uy * uy
+        if uu > len2 or uu <= 0.0:
+            break
+        for k in range(p + 1, q):
+            wx, wy = pts[k, 0] - ax, pts[k, 1] - ay
+            t = min(max((wx * ux + wy * uy) / uu, 0.0), 1.0)
+            dx, dy = wx - t * ux, wy - t * uy
+            if dx * dx + dy * dy > tol2:
+                return end
+        end = q
+    return end
 
 
 @njit(cache=True)

@@ -267,7 +267,8 @@ class WideLoopSearch:
         for first in range(0, n_old, per_slice):
             splat_scans(nodes.points, nodes.counts, poses, self._index, first,
                         min(first + per_slice, n_old), c.wide_query_range + radius,
-                        self.max_gap, ox, oy, res, sigma, self._d2)
+                        self.max_gap, ox, oy, res, sigma, self._d2,
+                        c.wide_surface_tolerance)
             yield
         yield from _in_parts(n, rows, hits_from_distances, self._d2, sigma, self._pyramid[0])
         for h in range(1, self._pyramid.shape[0]):

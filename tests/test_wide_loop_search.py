@@ -12,7 +12,7 @@ from swarmslam.runtime.config import SlamConfig, override
 from swarmslam.runtime.graph_optimizer import GaussNewton
 from swarmslam.runtime.loop_closure import LoopCloser
 from swarmslam.runtime.node_scans import NodeScans
-from swarmslam.runtime.place_search import pool_pyramid
+from swarmslam.runtime.place_search import clear_distances, pool_pyramid, splat_scans
 from swarmslam.runtime.pose import compose, wrap_angle
 from swarmslam.runtime.pose_graph import LOOP, PoseGraph
 from swarmslam.runtime.scan import PointScan
@@ -239,3 +239,49 @@ def test_a_proposal_is_judged_by_its_own_error_not_by_the_drift_it_repairs():
     closer = LoopCloser(c)
     assert closer.consistent(graph, edge, total_before) is False
     assert closer.consistent(graph, edge, total_before, proposal=True) is True
+
+
+def _rendered(points, tolerance, res=0.1, sigma=0.2, n=80):
+    """Squared distances of a ``n × n`` grid of ``res`` to the surface through ``points`` (one
+    node at the origin), drawn with ``tolerance``."""
+    d2 = np.zeros((n, n))
+    clear_distances(d2, sigma, 0, n)
+    counts = np.array([len(points)], np.int64)
+    splat_scans(points[None], counts, np.zeros((1, 3)), np.zeros(1, np.int64), 0, 1, 30.0, 1.0,
+                0.0, 0.0, res, sigma, d2, tolerance)
+    return d2
+
+
+def test_a_dense_scan_drawn_as_longer_segments_moves_no_distance_beyond_the_tolerance():
+    """A wall, a corner and a gap, sampled every 1-2 cm with 5 mm of noise: drawn beam by beam
+    (tolerance 0) each cell holds its exact distance to the nearest segment or point; drawn
+    with a tolerance, no distance moves by more than it, and a far point stays alone."""
+    rng = np.random.default_rng(4)
+    wall = np.c_[np.linspace(1.0, 5.0, 300), np.full(300, 2.0)]
+    side = np.c_[np.full(200, 5.0), np.linspace(2.0, 4.5, 200)]
+    points = np.r_[wall, side, [[2.0, 6.5]]] + rng.normal(0.0, 0.005, (501, 2))
+    points[-1] = (2.0, 6.5)  # more than max_gap from the side's last point: on its own
+    exact = _rendered(points, 0.0)
+    ys, xs = np.mgrid[0:80, 0:80] * 0.1
+    cells = np.c_[xs.ravel(), ys.ravel()]
+    nearest = np.full(len(cells), np.inf)
+    for a, b in zip(points[:-1], points[1:]):
+        if np.hypot(*(b - a)) >= 1.0:
+            continue
+        u = b - a
+        t = np.clip((cells - a) @ u / (u @ u), 0.0, 1.0)
+        nearest = np.minimum(nearest, np.sum((a + t[:, None] * u - cells) ** 2, axis=1))
+    nearest = np.minimum(nearest, np.sum((points[-1] - cells) ** 2, axis=1))
+    reach2 = (3 * 0.2) ** 2
+    near = nearest < reach2
+    assert np.allclose(exact.ravel()[near], nearest[near], atol=1e-12)
+    for tolerance in (0.01, 0.04):
+        drawn = _rendered(points, tolerance)
+        assert not np.array_equal(drawn, exact)  # runs were drawn as longer segments
+        inside = near & (drawn.ravel() < reach2)
+        moved = np.abs(np.sqrt(drawn.ravel()[inside]) - np.sqrt(nearest[inside]))
+        assert moved.max() <= tolerance + 1e-9
+        lost = near & ~inside  # only at the reach's edge, which moves by the tolerance too
+        assert np.all(np.sqrt(nearest[lost]) > 3 * 0.2 - tolerance - 1e-9)
+    lone = (65, 20)  # the far point's cell: exactly on it, whatever the tolerance
+    assert _rendered(points, 0.04)[lone] == pytest.approx(0.0, abs=1e-12)
