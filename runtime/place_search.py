@@ -84,20 +84,21 @@ def splat_scans(points, counts, poses, index, first, last, max_range, max_gap, o
         m = index[e]
         c, s = math.cos(poses[m, 2]), math.sin(poses[m, 2])
         n = counts[m]
+        pts = points[m]
         covered = False  # the point ends the segment drawn last
         p = 0
         while p < n:
-            px, py = points[m, p, 0], points[m, p, 1]
+            px, py = pts[p, 0], pts[p, 1]
             if px * px + py * py > reach2:
                 p += 1
                 covered = False
                 continue
-            q = chain_end(points[m], n, p, gap2, reach2, tolerance, radius)
+            q = chain_end(pts, n, p, gap2, reach2, tolerance, radius)
             if q == p and covered and tolerance > 0.0:  # drawn already, as a segment's end
                 p += 1
                 covered = False
                 continue
-            qx, qy = points[m, q, 0], points[m, q, 1]
+            qx, qy = pts[q, 0], pts[q, 1]
             ax = poses[m, 0] + c * px - s * py - ox
             ay = poses[m, 1] + s * px + c * py - oy
             bx = poses[m, 0] + c * qx - s * qy - ox
