@@ -76,6 +76,10 @@ class BackEnd:
         self.head = 0  # index of the oldest queued node
         self.size = 0
         self.candidates = np.zeros(lc.max_attempts, np.int64)
+        self.failed = np.zeros(lc.max_attempts, np.int64)  # candidates whose match failed ...
+        self.n_failed = 0
+        self.failed_node = -1  # ... for this node's search
+        self.failed_revision = -1  # ... with the graph at this revision
         self.n_candidates = 0
         self.next_candidate = 0
         self.node = -1  # node whose search is under way (-1: none)
@@ -151,9 +155,8 @@ class BackEnd:
             if self._closed_lately(self.node):
                 self._finish()
                 return
-            found = self.loop_candidates(self.node)
-            n = min(len(found), self.candidates.shape[0])
-            self.candidates[:n] = found[:n]
+            n = self._take_untried(self.loop_candidates(self.node))
+            self.failed_node, self.failed_revision, self.n_failed = self.node, self.revision, 0
             self.n_candidates = n
             self.next_candidate = 0
             self.phase = ALIGN
@@ -187,6 +190,9 @@ class BackEnd:
             z = (self.align_loop(candidate, self.node, self.guess, self._wide_window)
                  if self.widened else self.align_loop(candidate, self.node))
             if z is None:
+                if not self.widened and self.n_failed < self.failed.shape[0]:
+                    self.failed[self.n_failed] = candidate
+                    self.n_failed += 1
                 self._next_candidate()
             else:
                 self.z[:] = z
@@ -210,6 +216,23 @@ class BackEnd:
                 return True
             k -= 1
         return False
+
+    def _take_untried(self, found) -> int:
+        """Keep the first ``max_attempts`` of ``found`` as the node's candidates, passing over
+        those whose match failed for the node just before with the graph as it is now: half
+        a metre on, against the same submap, such a match fails again (MIT-CSAIL: 93% of
+        them), and the attempt is better spent on the next candidate (docs/method.md §5,
+        step 3). Returns how many."""
+        repeat = self.failed_node == self.node - 1 and self.failed_revision == self.revision
+        n = 0
+        for candidate in found:
+            if n == self.candidates.shape[0]:
+                break
+            if repeat and candidate in self.failed[: self.n_failed]:
+                continue
+            self.candidates[n] = candidate
+            n += 1
+        return n
 
     def _next_candidate(self) -> None:
         self.next_candidate += 1
@@ -371,6 +394,8 @@ class BackEnd:
             "z": self.z.copy(), "z_info": self.z_info.copy(), "cost": self.cost.copy(),
             "wide": self.wide.state(), "guess": self.guess.copy(),
             "widened": self.widened, "last_closure": self.last_closure,
+            "failed": self.failed[: self.n_failed].copy(), "failed_node": self.failed_node,
+            "failed_revision": self.failed_revision,
             "slices": self.slices.copy(),
             "node": self.node, "phase": self.phase, "next_candidate": self.next_candidate,
             "waited": self.waited, "enqueued": self.enqueued, "searched": self.searched,
@@ -388,7 +413,9 @@ class BackEnd:
                              f"{self.candidates.shape[0]}")
         n = self.graph.n_nodes
         node = int(state["node"])
-        if any(not 0 <= int(v) < n for v in (*queue, *cand)) or not -1 <= node < n:
+        failed = np.asarray(state.get("failed", ()), np.int64)  # older sessions: none
+        if (any(not 0 <= int(v) < n for v in (*queue, *cand, *failed)) or not -1 <= node < n
+                or len(failed) > self.failed.shape[0]):
             raise ValueError("the loop search refers to nodes that do not exist")
         if (not SELECT <= int(state["phase"]) <= WIDE
                 or not 0 <= int(state["next_candidate"]) <= len(cand)):
@@ -407,6 +434,10 @@ class BackEnd:
         self.widened = bool(state["widened"])
         self._wide_steps = None  # a wide search under way begins again: it keeps no state
         self.last_closure = int(state["last_closure"])
+        self.n_failed = len(failed)
+        self.failed[: self.n_failed] = failed
+        self.failed_node = int(state.get("failed_node", -1))
+        self.failed_revision = int(state.get("failed_revision", -1))
         self.node = node
         (self.phase, self.next_candidate, self.waited, self.enqueued, self.searched,
          self.dropped, self.deferred, self.forced, self.revision) = (

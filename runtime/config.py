@@ -179,6 +179,12 @@ class MatcherConfig(Section):
     coarse_resolution: float = _setting(0.1, "m, the global stage's coarse field (0: none)", ge=0)
     coarse_radius: float = _setting(0.6, "m, truncation of the coarse field", gt=0)
     stride: int = _setting(2, "the global stage uses every stride-th point", ge=1)
+    global_points: int = _setting(
+        96, "the global stage scores at most about this many points: a denser scan's stride "
+        "grows to keep to it (a 0.5° scanner costs what a 1° one does; 0: stride alone)", ge=0)
+    refine_points: int = _setting(
+        192, "the local stage scores at most about this many points, by a stride (its best "
+        "judged on all; 0: all)", ge=0)
     refine_evaluations: int = _setting(600, "budget of the local stage (0: none)", ge=0,
                                       le=10_000_000)
     refine_window: tuple[float, float, float] = _setting(
@@ -212,8 +218,9 @@ class MatcherConfig(Section):
     def paper(cls, optimizer: str = "abc", **overrides) -> MatcherConfig:
         """The paper's matcher: Eq. 14 on a single field, the swarm halted by its own rules."""
         base = dict(swarm=SwarmConfig(optimizer=optimizer), kernel="paper", field_radius=1.0,
-                    surface_bend=0.0, coarse_resolution=0.0, stride=1, refine_evaluations=0,
-                    polish_evaluations=0, scan_to_map=True)
+                    surface_bend=0.0, coarse_resolution=0.0, stride=1, global_points=0,
+                    refine_points=0, refine_evaluations=0, polish_evaluations=0,
+                    scan_to_map=True)
         base.update(overrides)
         return cls(**base)
 
@@ -821,8 +828,8 @@ EXPERT_FIELDS = frozenset({
     "matcher.surface_bend", "matcher.surface_gap_ratio", "matcher.coarse_radius",
     "matcher.polish_step", "matcher.polish_halvings", "matcher.polish_evaluations",
     "matcher.grid_cells", "matcher.occupied_radius", "matcher.robot_diameter",
-    "matcher.predict_first", "matcher.swarm.stagnation_tol", "matcher.swarm.target_value",
-    "matcher.swarm.params",
+    "matcher.predict_first", "matcher.refine_points", "matcher.swarm.stagnation_tol",
+    "matcher.swarm.target_value", "matcher.swarm.params",
     "loop_closure.bearing_bins", "loop_closure.position_floor", "loop_closure.window_margin",
     "loop_closure.max_violations", "loop_closure.inlier_slope",
     "loop_closure.degenerate_information", "loop_closure.wide_min_gap",

@@ -56,8 +56,10 @@ from swarmslam.runtime.threshold import RejectionThreshold
     S_POLISH_T,
     S_POLISH_HALVINGS,
     S_POLISH_EVALS,
-) = range(20)
-N_SETTINGS = 20
+    S_GLOBAL_POINTS,
+    S_REFINE_POINTS,
+) = range(22)
+N_SETTINGS = 22
 # Layout of the ``out`` array it fills.
 R_X, R_Y, R_T, R_LAMBDA, R_USED_MAP, R_ITERATIONS, R_EVALUATIONS, R_LAMBDA_SCAN = range(8)
 N_OUT = 8
@@ -177,6 +179,16 @@ def _polish(settings, field, meta, pts, n, box, out):
 
 
 @njit(cache=True)
+def _stride(n, stride, points):
+    """Every how many of ``n`` points a stage scores: ``stride``, or more so that it scores at
+    most about ``points`` of them (0: ``stride``)."""
+    s = int(stride)
+    if points > 0:
+        s = max(s, int(math.ceil(n / points)))
+    return s
+
+
+@njit(cache=True)
 def _set_box(ws, lo, hi):
     for d in range(3):
         ws.lo[d] = lo[d]
@@ -210,7 +222,7 @@ def align_kernel(
             return
     # 1. Scan-to-scan over the whole box (Eq. 14), on a stride of the points and, if set up,
     # on the coarse wide field whose broad basin the swarm finds more reliably ...
-    stride = int(settings[S_STRIDE])
+    stride = _stride(n, settings[S_STRIDE], settings[S_GLOBAL_POINTS])
     _set_box(ws, box[0], box[1])
     if settings[S_COARSE] != 0.0:
         _minimise(kind, ws, settings, 0, 0, pts, n, stride, coarse, grid, coarse_meta, budget)
@@ -224,7 +236,11 @@ def align_kernel(
             ws.lo[d] = out[R_X + d] - w
             ws.hi[d] = out[R_X + d] + w
         refine = settings[S_REFINE_EVALS]
-        _minimise(kind, ws, settings, 0, kernel, pts, n, 1, field, grid, meta, refine)
+        step = _stride(n, 1, settings[S_REFINE_POINTS])
+        _minimise(kind, ws, settings, 0, kernel, pts, n, step, field, grid, meta, refine)
+        if step > 1:  # its best judged on all points, as every stage is
+            ws.scal[BEST_VAL] = _lambda(settings, field, meta, pts, n, ws.best[0], ws.best[1],
+                                        ws.best[2])
         _take(ws, out, ws.scal[BEST_VAL])
     _polish(settings, field, meta, pts, n, box, out)
     out[R_LAMBDA_SCAN] = out[R_LAMBDA]
@@ -264,6 +280,8 @@ class ScanMatcher:
         s[S_TARGET] = sw.target_value
         s[S_MAX_EVALS] = sw.max_evaluations
         s[S_STRIDE] = c.stride
+        s[S_GLOBAL_POINTS] = c.global_points
+        s[S_REFINE_POINTS] = c.refine_points
         s[S_REFINE_EVALS] = c.refine_evaluations
         s[S_REFINE_X : S_REFINE_T + 1] = c.refine_window
         s[S_COARSE] = 1.0 if c.coarse_resolution > 0 else 0.0

@@ -182,3 +182,32 @@ def test_polish_settles_a_short_swarm_in_its_basin():
             moved[d] += sign * step
             assert scan_to_scan_error(reference.field, reference.meta, cur.buffer, cur.count, 1,
                                       *moved, KERNELS["cauchy"]) >= p.error
+
+
+def test_a_dense_scan_is_scored_on_a_bounded_share_of_its_points():
+    """matcher.global_points / refine_points: a 0.25° scan (1,440 beams) is matched on about
+    as many points per stage as a 1° one, as accurately; a scan within the bounds is matched
+    exactly as with the bounds off (the stride the configuration sets)."""
+    from swarmslam.runtime.scan_matcher import _stride
+
+    assert _stride(180, 2, 96) == 2 and _stride(192, 2, 96) == 2  # a 1° scan: the stride
+    assert _stride(361, 2, 96) == 4 and _stride(1440, 2, 96) == 15
+    assert _stride(361, 1, 192) == 2 and _stride(361, 1, 0) == 1 and _stride(5, 3, 96) == 3
+    dense = np.deg2rad(np.arange(-180, 180, 0.25))
+    motion = np.array([0.4, -0.2, 0.15])
+    world = room_world(seed=3)
+    rng = np.random.default_rng(3)
+    ref = PointScan.from_ranges(scan_at(world, START, dense, 12.0, 0.01, rng), dense, 0.05, 12.0)
+    cur = PointScan.from_ranges(scan_at(world, pose_after(START, motion), dense, 12.0, 0.01,
+                                        rng), dense, 0.05, 12.0)
+    assert cur.count > 1000
+    guess = motion + [0.1, -0.1, 0.05]
+    for bounds in ({}, {"global_points": 0, "refine_points": 0}):
+        r = match("abc", ref, cur, guess, **bounds)
+        e = between(r.pose, motion)
+        assert np.hypot(e[0], e[1]) < 0.01 and abs(e[2]) < 0.005, (bounds, r)
+    ref, cur = scans_for(tuple(motion))  # 360 beams, every one returned: 4 × 96 ≥ 360
+    wide = dict(global_points=90, refine_points=360, stride=4)
+    assert np.array_equal(match("abc", ref, cur, guess, **wide).pose,
+                          match("abc", ref, cur, guess, stride=4, global_points=0,
+                                refine_points=0).pose)

@@ -340,3 +340,41 @@ def test_closure_spacing_skips_the_search_just_after_a_closure():
     assert np.min(np.diff(closed_at["every node"])) <= 2  # closures on close nodes, unspaced
     assert np.min(np.diff(closed_at["spaced"])) > 2
     assert 0 < len(closed_at["spaced"]) < len(closed_at["every node"])
+
+
+def test_a_candidate_whose_match_failed_a_node_ago_is_passed_over_until_the_graph_changes(
+        monkeypatch):
+    """Alg. 7's attempts go to candidates not just tried in vain: a candidate whose match
+    failed for node n − 1 is not tried for node n unless a closure changed the graph since;
+    the next gated candidate takes its place."""
+    from swarmslam.runtime.back_end import BackEnd
+
+    attempts = []  # (node, candidate, matched, graph revision)
+    align = BackEnd.align_loop
+
+    def recording(self, candidate, node, guess=None, window=None):
+        z = align(self, candidate, node, guess, window)
+        if guess is None:
+            attempts.append((node, candidate, z is not None, self.revision))
+        return z
+
+    monkeypatch.setattr(BackEnd, "align_loop", recording)
+    # strict submap tests and rougher odometry: some loop matches fail
+    config = override(SlamConfig(), {"loop_closure.min_inliers": 0.9,
+                                     "loop_closure.min_overlap": 0.9})
+    slam, truth, _ = run(steps=160, laps=1.25, config=config, odometry_noise=(0.04, 0.04, 0.02))
+    failed = {(n, c, r) for n, c, ok, r in attempts if not ok}
+    assert failed, "no loop match failed: the rule is not exercised"
+    passed_over = 0
+    for n, c, ok, r in attempts:
+        assert (n - 1, c, r) not in failed, (n, c)  # not retried, the graph unchanged
+    for n, c, r in failed:  # ... while the next node's search did run
+        passed_over += any(a[0] == n + 1 and a[3] == r for a in attempts)
+    assert passed_over > 0
+    restored = GraphSlam(config, seed=0)
+    restored.restore(slam.state())
+    assert np.array_equal(restored.back_end.failed[: restored.back_end.n_failed],
+                          slam.back_end.failed[: slam.back_end.n_failed])
+    assert restored.back_end.failed_node == slam.back_end.failed_node
+    _, poses = slam.trajectory()
+    assert np.hypot(*(poses[:, :2] - truth[:, :2]).T).mean() < 0.05
