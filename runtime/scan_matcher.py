@@ -238,10 +238,10 @@ def align_kernel(
         refine = settings[S_REFINE_EVALS]
         step = _stride(n, 1, settings[S_REFINE_POINTS])
         _minimise(kind, ws, settings, 0, kernel, pts, n, step, field, grid, meta, refine)
+        lam = ws.scal[BEST_VAL]
         if step > 1:  # its best judged on all points, as every stage is
-            ws.scal[BEST_VAL] = _lambda(settings, field, meta, pts, n, ws.best[0], ws.best[1],
-                                        ws.best[2])
-        _take(ws, out, ws.scal[BEST_VAL])
+            lam = _lambda(settings, field, meta, pts, n, ws.best[0], ws.best[1], ws.best[2])
+        _take(ws, out, lam)
     _polish(settings, field, meta, pts, n, box, out)
     out[R_LAMBDA_SCAN] = out[R_LAMBDA]
 

@@ -225,7 +225,7 @@ class SparseLDL:
         if fill > self.Li.shape[0]:
             raise FactorCapacityError(
                 f"the factor needs {fill} entries but its capacity is {self.Li.shape[0]} "
-                "(raise SlamConfig.factor_fill)")
+                "(raise optimizer.fill_ratio)")
         self.n, self.fill = n, fill
         return fill
 

@@ -157,3 +157,23 @@ def test_swapping_an_edge_is_seen_by_the_cached_solver():
     fresh = GaussNewton(fresh_graph).optimize()
     assert np.isclose(cached.chi2, fresh.chi2, rtol=1e-9)
     assert np.allclose(g.poses[:n], fresh_graph.poses[:n], atol=1e-9)
+
+
+def test_a_factor_beyond_its_capacity_is_refused_naming_the_field_that_raises_it():
+    from swarmslam.runtime.config import field_names
+    from swarmslam.runtime.sparse_ldl import FactorCapacityError
+
+    truth = square_loop()
+    n = len(truth)
+    g = PoseGraph(n, 2 * n)
+    g.add_node(truth[0])
+    for k in range(1, n):
+        g.add_node(truth[k])
+        g.add_edge(k - 1, k, between(truth[k], truth[k - 1]), np.eye(3))
+    for k in range(0, n - 7, 2):  # many loops across the chain: fill-in beyond its pattern
+        g.add_edge(k, k + 7, between(truth[k + 7], truth[k]), np.eye(3), LOOP)
+    with pytest.raises(FactorCapacityError, match=r"raise optimizer\.fill_ratio") as refused:
+        GaussNewton(g, fill_ratio=1.0).optimize()
+    assert "optimizer.fill_ratio" in field_names()
+    assert "capacity is" in str(refused.value)
+    GaussNewton(g).optimize()  # the default capacity holds it
