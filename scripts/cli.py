@@ -122,7 +122,8 @@ def _bench_generalization(args) -> int:
 def _bench_env(args) -> int:
     from swarmslam.bench.env import bench_env
 
-    bench_env(args.world, args.steps, args.slam_steps, args.json, plots=args.plots)
+    bench_env(args.world, args.steps, args.slam_steps, args.json, plots=args.plots,
+              repeats=args.repeats)
     if args.json:
         print(f"wrote {args.json}")
     return 0
@@ -782,6 +783,8 @@ def build_parser() -> argparse.ArgumentParser:
     env.add_argument("--world", default="office")
     env.add_argument("--steps", type=_at_least_one, default=5000, help="steps timed without SLAM")
     env.add_argument("--slam-steps", type=_at_least_one, default=1000, help="steps timed with SLAM")
+    env.add_argument("--repeats", type=_at_least_one, default=3,
+                     help="runs of each single-env rate (the median is reported)")
     _bench_outputs(env)
     env.set_defaults(func=_bench_env)
     rt = bsub.add_parser("runtime", help="the fixed-rate runtime on Intel: latency, misses, "

@@ -50,6 +50,18 @@ def test_bench_matcher_says_when_data_is_missing(tmp_path, capsys):
     assert "does not exist" in capsys.readouterr().err
 
 
+def test_bench_env_reports_the_median_of_its_runs_and_records_each(tmp_path, capsys):
+    out = tmp_path / "env.json"
+    assert main(["bench", "env", "--steps", "40", "--slam-steps", "10", "--repeats", "3",
+                 "--json", str(out)]) == 0
+    r = json.loads(out.read_text())
+    for key in ("without_slam", "with_slam"):
+        runs = r["runs"][key]
+        assert len(runs) == 3 and all(v > 0 for v in runs)
+        assert r[f"steps_per_s_{key}"] == sorted(runs)[1]
+    assert "median of 3" in capsys.readouterr().out
+
+
 def test_demo_writes_trajectories_figure_and_summary(tmp_path, capsys):
     assert main(["demo", "--matcher-only", "--out", str(tmp_path), "--steps", "30"]) == 0
     summary = json.loads((tmp_path / "summary.json").read_text())

@@ -197,9 +197,16 @@ def soak(data: dict) -> Section:
 
 
 def env(data: dict) -> Section:
+    runs = data.get("runs", {})
+
+    def rate(key):  # the median of the runs, and each run (files before repeats had one)
+        each = runs.get(key.removeprefix("steps_per_s_"))
+        return f"{data[key]:.0f}" + (f" (median of runs {', '.join(f'{v:.0f}' for v in each)})"
+                                      if each and len(each) > 1 else "")
+
     table = _head("figure", "value")
-    table += [_row("steps/s without SLAM", f"{data['steps_per_s_without_slam']:.0f}"),
-              _row("steps/s with SLAM", f"{data['steps_per_s_with_slam']:.0f}"),
+    table += [_row("steps/s without SLAM", rate("steps_per_s_without_slam")),
+              _row("steps/s with SLAM", rate("steps_per_s_with_slam")),
               _row("LiDAR scans/s: numba / pymunk", f"{data['lidar']['numba_scans_per_s']:.0f} / "
                    f"{data['lidar']['pymunk_scans_per_s']:.0f}")]
     labels = {"steps_per_s_without_slam": "steps/s without SLAM",
