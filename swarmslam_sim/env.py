@@ -14,7 +14,7 @@ from swarmslam.runtime.config import OPTIMIZERS, SlamConfig, override, simulated
 from swarmslam.runtime.fixed_rate import SlamRuntime
 from swarmslam.runtime.localization import TRACKING
 from swarmslam.runtime.pose import between_nb, compose_nb, wrap_angle, wrap_angle_nb
-from swarmslam.runtime.scan import PointScan, ranges_to_points
+from swarmslam.runtime.scan import PointScan, directions_to_points
 from swarmslam_sim.catalog import get_world
 from swarmslam_sim.lidar import Lidar, lidar_config
 from swarmslam_sim.mapping import crop_probability, wall_clearance, world_grid
@@ -166,7 +166,7 @@ class SwarmSlamEnv(gym.Env):
             "map": spaces.Box(0.0, 1.0, (int(crop), int(crop)), np.float32),
         })
         self._scan = PointScan(lc.beams)
-        self._crop = np.zeros((int(crop), int(crop)))
+        self._crop = np.zeros((int(crop), int(crop)), np.float32)  # (as observed)
         self.space = self.robot = self.slam = None
         self.renderer = None
         self.true_path: list[np.ndarray] = []
@@ -262,7 +262,8 @@ class SwarmSlamEnv(gym.Env):
         lc = self.lidar.config
         ranges = self.lidar.scan(self.true_pose, self.np_random)
         scan = self._scan
-        scan.count = ranges_to_points(ranges, self.lidar.angles, lc.min_range, lc.max_range, scan.buffer)
+        scan.count = directions_to_points(ranges, self.lidar.directions, lc.min_range,
+                                          lc.max_range, scan.buffer)
         if self.slam is not None and scan.count > 0:
             t0 = time.perf_counter()
             result = self.runtime.process(scan, self.odometry, self.steps * self.dt)
@@ -364,10 +365,11 @@ class SwarmSlamEnv(gym.Env):
         pose[2] = wrap_angle_nb(self.estimated_pose[2])
         crop_probability(self.map.logodds, self.map.origin[0], self.map.origin[1],
                          self.map.resolution, self.estimated_pose[0], self.estimated_pose[1], self._crop)
+        np.minimum(np.maximum(pose, lo, out=pose), hi, out=pose)  # (np.clip: 2.5× the time)
         return {
             "scan": self.lidar.ranges.astype(np.float32),
-            "pose": np.clip(pose, lo, hi),
-            "map": self._crop.astype(np.float32),
+            "pose": pose,
+            "map": self._crop.copy(),
         }
 
     def _info(self):

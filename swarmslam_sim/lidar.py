@@ -14,6 +14,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numba import njit
 
+from swarmslam.runtime.scan import beam_directions
 from swarmslam_sim.raycast import build_grid, cast_scan
 from swarmslam_sim.world import World
 
@@ -77,6 +78,8 @@ class Lidar:
         self.world = world
         self.wall_radius = float(wall_radius)
         self.angles = config.angles()
+        self.directions = np.zeros((config.beams, 2))  # the beams' unit vectors, once
+        beam_directions(self.angles, self.directions)
         self.grid, self.cell_start, self.cell_items = build_grid(world.segments, wall_radius,
                                                                  world.bounds)
         self.ranges = np.zeros(config.beams)  # the last scan, no return = max_range
@@ -103,13 +106,24 @@ class Lidar:
         r = self.cast(pose, self.ranges)
         if c.noise_std > 0:  # (in place: no temporary array per scan)
             rng.standard_normal(out=self._noise)
-            self._noise *= c.noise_std
-            r += self._noise
         if c.dropout > 0:
             rng.random(out=self._drop)
-            np.copyto(r, np.inf, where=self._drop < c.dropout)
-        no_return(r, c.min_range, c.max_range)
+        measure(r, self._noise, c.noise_std, self._drop, c.dropout, c.min_range, c.max_range)
         return r
+
+
+@njit(cache=True)
+def measure(ranges, noise, noise_std, draws, dropout, min_range, max_range):
+    """Exact ranges made measured ones, in place: ``noise`` (standard normal) scaled by
+    ``noise_std`` added, a beam whose uniform draw falls below ``dropout`` lost, then
+    :func:`no_return`'s rule — one pass instead of five array operations per scan."""
+    for k in range(ranges.shape[0]):
+        r = ranges[k]
+        if noise_std > 0:
+            r += noise[k] * noise_std
+        if dropout > 0 and draws[k] < dropout:
+            r = math.inf
+        ranges[k] = max_range if r < min_range or not r < max_range else r
 
 
 @njit(cache=True)

@@ -3,7 +3,8 @@ import math
 import numpy as np
 import pytest
 
-from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.scan import (PointScan, beam_directions, directions_to_points,
+                                    ranges_to_points)
 
 
 def test_invalid_readings_dropped():
@@ -50,3 +51,18 @@ def test_bad_input_raises_clear_error(ranges, angles, message):
 def test_capacity_exceeded_is_named():
     with pytest.raises(ValueError, match="buffer holds 4"):
         PointScan(4).set_ranges(np.ones(5), np.zeros(5))
+
+
+def test_fixed_directions_give_the_same_points_bit_for_bit():
+    rng = np.random.default_rng(3)
+    angles = np.r_[np.linspace(-math.pi, math.pi, 700, endpoint=False), np.nan]
+    ranges = rng.uniform(-1.0, 14.0, angles.size)
+    ranges[rng.random(angles.size) < 0.1] = np.inf
+    ranges[5], ranges[6] = np.nan, 12.0  # unreadable; at the limit (no return)
+    directions = np.zeros((angles.size, 2))
+    beam_directions(angles, directions)
+    for capacity in (1000, 300):  # and when the buffer fills
+        a, b = np.zeros((capacity, 2)), np.zeros((capacity, 2))
+        n = ranges_to_points(ranges, angles, 0.15, 12.0, a)
+        assert directions_to_points(ranges, directions, 0.15, 12.0, b) == n
+        assert 0 < n <= capacity and np.array_equal(a[:n], b[:n])

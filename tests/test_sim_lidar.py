@@ -69,6 +69,22 @@ def test_noise_and_dropout_follow_the_config():
     assert np.array_equal(again, ranges)  # the generator decides everything
 
 
+def test_one_pass_of_noise_dropout_and_no_return_is_the_array_operations_bit_for_bit():
+    """Noise, dropouts and the no-return rule are applied in one compiled pass: the same ranges
+    as the array operations they replace, from the same draws."""
+    config = LidarConfig(beams=720, noise_std=0.03, dropout=0.05, max_range=6.0)
+    lidar = Lidar(get_world("office"), config)
+    for seed, pose in enumerate(free_poses(get_world("office"), 5)):
+        exact = lidar.cast(pose).copy()
+        ranges = lidar.scan(pose, np.random.default_rng(seed))
+        rng = np.random.default_rng(seed)
+        expected = exact + rng.standard_normal(720) * 0.03
+        expected[rng.random(720) < 0.05] = np.inf
+        expected[(expected < config.min_range) | ~(expected < config.max_range)] = 6.0
+        assert np.array_equal(ranges, expected)
+        assert (ranges == 6.0).any() and (ranges < 6.0).any()
+
+
 def test_presets_and_configs():
     a1, lms = PRESETS["rplidar-a1"], PRESETS["lms200"]
     assert a1.beams == 360 and a1.max_range == 12.0
