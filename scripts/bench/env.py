@@ -6,9 +6,9 @@ LiDAR scans per second of the compiled caster beside pymunk's per-beam queries o
 poses; and the throughput of 2 environments in ``SyncVectorEnv`` and ``AsyncVectorEnv``.
 Everything is measured in one run, so the ratios hold even on a noisy shared machine. The
 single environment's two rates are each the median of ``repeats`` runs (a fresh environment,
-the same seed and actions each time; every run is recorded): on this 2-core machine one run
-without SLAM has read anywhere from 5,400 to 8,300 steps/s on unchanged code, so one reading
-says as much about the machine's neighbours as about the simulator.
+the same seed and actions each time; every run is recorded): on a shared 2-core machine one
+run without SLAM has read 30% below another on unchanged code, so a single reading says as
+much about the machine's neighbours as about the simulator.
 """
 
 from __future__ import annotations
