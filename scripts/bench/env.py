@@ -7,7 +7,7 @@ poses; and the throughput of 2 environments in ``SyncVectorEnv`` and ``AsyncVect
 Everything is measured in one run, so the ratios hold even on a noisy shared machine. The
 single environment's two rates are each the median of ``repeats`` runs (a fresh environment,
 the same seed and actions each time; every run is recorded): on a shared 2-core machine one
-run without SLAM has read 30% below another on unchanged code, so a single reading says as
+run without SLAM has read a third below another on unchanged code, so a single reading says as
 much about the machine's neighbours as about the simulator.
 """
 
