@@ -13,6 +13,12 @@ import numpy as np
 from numba import njit
 
 
+@njit(cache=True, inline="always")
+def valid_reading(r, min_range, max_range):
+    """A reading is valid when finite and ``min_range < r < max_range``."""
+    return math.isfinite(r) and not (r <= min_range or r >= max_range)
+
+
 @njit(cache=True)
 def ranges_to_points(ranges, angles, min_range, max_range, out):
     """Write the valid beams' end points into ``out`` (capacity × 2); return how many.
@@ -25,9 +31,7 @@ def ranges_to_points(ranges, angles, min_range, max_range, out):
     for i in range(ranges.shape[0]):
         r = ranges[i]
         a = angles[i]
-        if not (math.isfinite(r) and math.isfinite(a)):
-            continue
-        if r <= min_range or r >= max_range:
+        if not (valid_reading(r, min_range, max_range) and math.isfinite(a)):
             continue
         if n >= cap:
             break
@@ -57,9 +61,8 @@ def directions_to_points(ranges, directions, min_range, max_range, out):
         r = ranges[i]
         c = directions[i, 0]
         s = directions[i, 1]
-        if not (math.isfinite(r) and math.isfinite(c) and math.isfinite(s)):
-            continue
-        if r <= min_range or r >= max_range:
+        if not (valid_reading(r, min_range, max_range) and math.isfinite(c)
+                and math.isfinite(s)):
             continue
         if n >= cap:
             break

@@ -123,7 +123,7 @@ def measure(ranges, noise, noise_std, draws, dropout, min_range, max_range):
             r += noise[k] * noise_std
         if dropout > 0 and draws[k] < dropout:
             r = math.inf
-        ranges[k] = max_range if r < min_range or not r < max_range else r
+        ranges[k] = reported(r, min_range, max_range)
 
 
 @njit(cache=True)
@@ -131,6 +131,11 @@ def no_return(ranges, min_range, max_range):
     """Every range below ``min_range``, at or beyond ``max_range`` (or NaN) set to
     ``max_range``: what the scanner reports for a beam without a return."""
     for k in range(ranges.shape[0]):
-        r = ranges[k]
-        if r < min_range or not r < max_range:
-            ranges[k] = max_range
+        ranges[k] = reported(ranges[k], min_range, max_range)
+
+
+@njit(cache=True, inline="always")
+def reported(r, min_range, max_range):
+    """What the scanner reports for range ``r``: ``max_range`` (no return) below
+    ``min_range``, at or beyond ``max_range``, or NaN; else ``r``."""
+    return max_range if r < min_range or not r < max_range else r
