@@ -58,8 +58,10 @@ from swarmslam.runtime.threshold import RejectionThreshold
     S_POLISH_EVALS,
     S_GLOBAL_POINTS,
     S_REFINE_POINTS,
-) = range(22)
-N_SETTINGS = 22
+    S_STALL_IT,
+    S_STALL_TOL,
+) = range(24)
+N_SETTINGS = 24
 # Layout of the ``out`` array it fills.
 R_X, R_Y, R_T, R_LAMBDA, R_USED_MAP, R_ITERATIONS, R_EVALUATIONS, R_LAMBDA_SCAN = range(8)
 N_OUT = 8
@@ -98,6 +100,8 @@ def _minimise(kind, ws, settings, mode, kernel, pts, n, stride, field, grid, met
         settings[S_STAG_TOL],
         settings[S_TARGET],
         budget,
+        settings[S_STALL_IT],
+        settings[S_STALL_TOL],
     )
     start(kind, ws)
     while True:
@@ -279,6 +283,8 @@ class ScanMatcher:
         s[S_STAG_TOL] = sw.stagnation_tol
         s[S_TARGET] = sw.target_value
         s[S_MAX_EVALS] = sw.max_evaluations
+        s[S_STALL_IT] = sw.stall_iterations
+        s[S_STALL_TOL] = sw.stall_tol
         s[S_STRIDE] = c.stride
         s[S_GLOBAL_POINTS] = c.global_points
         s[S_REFINE_POINTS] = c.refine_points

@@ -29,9 +29,9 @@ import numpy as np
 from swarmslam.runtime.writers import write_bytes_atomic
 
 FORMAT = "swarmslam-session"
-# 5: the wide search's recent corrections; 4: the back end's wide loop search; 3: loop edges
-# carry their own information
-VERSION = 5
+# 6: the swarm's stall rule (its run scalars grew); 5: the wide search's recent corrections;
+# 4: the back end's wide loop search; 3: loop edges carry their own information
+VERSION = 6
 ARRAY = "__array__"  # marks, in the meta, a leaf stored as an archive entry
 
 

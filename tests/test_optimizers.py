@@ -92,6 +92,32 @@ def test_stagnation_halts_on_a_flat_function(name):
 
 
 @pytest.mark.parametrize("name", OPTIMIZERS)
+def test_stall_rule_halts_when_the_best_stops_gaining(name):
+    # Values jump at random in [5, 5.4], so the spread settles late if ever (the paper's rule
+    # 2 needs 50 unchanged iterations) while nothing beats the first iteration's best by 0.4.
+    draws = np.random.default_rng(0)
+    noisy = lambda x: 5.0 + 0.4 * draws.random(x.shape[0])  # noqa: E731
+    off = SwarmConfig(optimizer=name, max_iterations=200)
+    assert SwarmOptimizer(off, dim=2, seed=0).minimize(noisy, [0, 0], [1, 1]).iterations > 50
+    on = SwarmConfig(optimizer=name, max_iterations=200, stall_iterations=12, stall_tol=0.5)
+    opt = SwarmOptimizer(on, dim=2, seed=0)
+    # The first iteration gains on nothing found yet; then 12 without a gain over 0.5.
+    assert opt.minimize(noisy, [0, 0], [1, 1]).iterations == 13
+    assert opt.minimize(noisy, [0, 0], [1, 1]).iterations == 13  # each run starts afresh
+    # Gains above the tolerance keep it going: on the sphere the best gains for a while.
+    r = SwarmOptimizer(SwarmConfig(optimizer=name, stall_iterations=12, stall_tol=1e-12),
+                       dim=3, seed=1).minimize(sphere, [-5] * 3, [5] * 3)
+    assert r.iterations > 13
+
+
+def test_the_matcher_swarm_stops_on_a_stall_and_the_papers_does_not():
+    from swarmslam.runtime.config import MatcherConfig
+
+    assert MatcherConfig().swarm.stall_iterations > 0
+    assert MatcherConfig.paper().swarm.stall_iterations == 0
+
+
+@pytest.mark.parametrize("name", OPTIMIZERS)
 def test_iteration_and_evaluation_limits(name):
     r = SwarmOptimizer(SwarmConfig(optimizer=name, max_iterations=7), dim=2).minimize(
         rastrigin, [-5] * 2, [5] * 2

@@ -275,7 +275,9 @@ def test_a_match_that_only_moves_odometrys_position_does_not_overrule_it():
 def test_a_stale_reading_is_not_counted_twice():
     """Odometry read every third scan (the same reading in between) while the robot turns:
     each new reading is applied from the scan that brought the last one, so the prediction
-    lands where the robot is, not a stale stretch further on; nothing is lost."""
+    lands where the robot is, not a stale stretch further on; no match falls back to the
+    prediction. (A stale reading predicts no motion, and the robot moves 0.285 m a scan: the
+    match lies at the guess box's edge margin, so it may be sought again; it must be found.)"""
     path = loop_path(80)[:30]
     world = room_world(0, size=(12.0, 9.0), boxes=14, walls=0, keep_clear=path)
     slam = GraphSlam(SlamConfig(), seed=0)
@@ -296,7 +298,7 @@ def test_a_stale_reading_is_not_counted_twice():
     for k in range(3, len(path), 3):  # a new reading lands the prediction on the truth
         assert np.hypot(*(predicted[k][:2] - truth[k, :2])) < 0.05
         assert abs(wrap_angle(predicted[k][2] - truth[k, 2])) < np.radians(1.0)
-    assert fe.lost_matches == 0
+    assert fe.lost_matches == fe.rescued_matches
     _, poses = slam.trajectory()
     assert np.hypot(*(poses[:, :2] - truth[:, :2]).T).max() < 0.05
 

@@ -130,6 +130,8 @@ class SwarmOptimizer:
             c.stagnation_tol,
             c.target_value,
             c.max_evaluations,
+            c.stall_iterations,
+            c.stall_tol,
         )
         start(self.kind, self.ws)
 

@@ -13,7 +13,10 @@ the spread between the best and the worst member changed by no more than ``stagn
 ``stagnation_iterations`` iterations in a row; stop at once when ``f < target_value``. Beyond the
 paper, an optional ``max_evaluations`` budget ends the run at the end of the iteration that
 reaches it: evaluations, not iterations, are what a tick's time is spent on, and they compare
-across optimizers whose iterations cost 20 or 50 evaluations.
+across optimizers whose iterations cost 20 or 50 evaluations. And, optionally, a run ends after
+``stall_iterations`` iterations in a row in which the best found improved by no more than
+``stall_tol``: a swarm that has settled in its basin spends the rest of a budget on gains the
+local stages make anyway (the spread rule rarely fires: a swarm's members keep moving).
 """
 
 from __future__ import annotations
@@ -37,7 +40,11 @@ STAGNATION_ITERATIONS = 9
 STAGNATION_TOL = 10
 TARGET_VALUE = 11
 MAX_EVALUATIONS = 12  # beyond the paper: a budget that bounds a fixed-rate tick
-N_SCAL = 13
+STALL_ITERATIONS = 13  # beyond the paper: iterations without a gain in the best (0: off)
+STALL_TOL = 14  # what counts as a gain in the best
+BEST_AT_GAIN = 15  # the best when it last gained
+STALLED = 16  # iterations since
+N_SCAL = 17
 
 SwarmWorkspace = namedtuple(
     "SwarmWorkspace",
@@ -89,9 +96,11 @@ def make_workspace(n_members: int, dim: int, n_params: int) -> SwarmWorkspace:
 
 @njit(cache=True)
 def reset_run(
-    ws, max_iterations, stagnation_iterations, stagnation_tol, target_value, max_evaluations
+    ws, max_iterations, stagnation_iterations, stagnation_tol, target_value, max_evaluations,
+    stall_iterations=0, stall_tol=0.0
 ):
-    """Clear the run scalars before a new minimisation (``max_evaluations`` <= 0: no budget)."""
+    """Clear the run scalars before a new minimisation (``max_evaluations`` <= 0: no budget;
+    ``stall_iterations`` 0: no stall rule)."""
     s = ws.scal
     s[:] = 0.0
     s[BEST_VAL] = np.inf
@@ -101,6 +110,9 @@ def reset_run(
     s[STAGNATION_TOL] = stagnation_tol
     s[TARGET_VALUE] = target_value
     s[MAX_EVALUATIONS] = max_evaluations if max_evaluations > 0 else np.inf
+    s[STALL_ITERATIONS] = stall_iterations if stall_iterations > 0 else np.inf
+    s[STALL_TOL] = stall_tol
+    s[BEST_AT_GAIN] = np.inf
 
 
 @njit(cache=True, inline="always")
@@ -120,10 +132,11 @@ def offer_best(scal, best, members, i, value):
 
 @njit(cache=True)
 def end_iteration(ws, values):
-    """Count one iteration and apply the stagnation and iteration-limit rules.
+    """Count one iteration and apply the stagnation, stall and iteration-limit rules.
 
     ``values`` are the swarm members' current values; their spread (worst − best) is what
-    must stop changing for the swarm to be called stagnant.
+    must stop changing for the swarm to be called stagnant. The stall rule watches the best
+    found instead.
     """
     s = ws.scal
     lo = np.inf
@@ -139,11 +152,17 @@ def end_iteration(ws, values):
     else:
         s[STAGNANT] = 0.0
     s[LAST_SPREAD] = spread
+    if s[BEST_VAL] < s[BEST_AT_GAIN] - s[STALL_TOL]:
+        s[BEST_AT_GAIN] = s[BEST_VAL]
+        s[STALLED] = 0.0
+    else:
+        s[STALLED] += 1.0
     s[ITERATION] += 1.0
     if (
         s[ITERATION] >= s[MAX_ITERATIONS]
         or s[STAGNANT] >= s[STAGNATION_ITERATIONS]
         or s[EVALUATIONS] >= s[MAX_EVALUATIONS]
+        or s[STALLED] >= s[STALL_ITERATIONS]
     ):
         s[DONE] = 1.0
 
