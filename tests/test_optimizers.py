@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from swarmslam.runtime.config import MatcherConfig
 from swarmslam.runtime.optimizers import SwarmConfig, SwarmOptimizer
 
 OPTIMIZERS = ["pso", "abc", "fa"]
@@ -111,8 +112,6 @@ def test_stall_rule_halts_when_the_best_stops_gaining(name):
 
 
 def test_the_matcher_swarm_stops_on_a_stall_and_the_papers_does_not():
-    from swarmslam.runtime.config import MatcherConfig
-
     assert MatcherConfig().swarm.stall_iterations > 0
     assert MatcherConfig.paper().swarm.stall_iterations == 0
 
