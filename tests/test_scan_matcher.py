@@ -1,5 +1,7 @@
 """The swarm scan matcher on synthetic scans with known motion (the paper's tuning protocol)."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -96,7 +98,7 @@ def test_threshold_tracks_mean_plus_std_and_triggers_fallback():
     ref, cur = scans_for(MOTIONS["translation"], 0.02)
     # Without the stall rule every stage spends its whole budget, so the count shows the
     # fallback ran.
-    whole_budget = SwarmConfig(max_evaluations=3000)
+    whole_budget = replace(MatcherConfig().swarm, stall_iterations=0)
     m = ScanMatcher(MatcherConfig(scan_to_map=True, swarm=whole_budget), seed=0)
     reference = m.build_reference(ref)
     errors = [m.align_scans(cur, reference).error for _ in range(5)]
