@@ -381,6 +381,10 @@ class LoopClosureConfig(Section):
     wide_after: int = _setting(
         10, "nodes since the last kept closure after which a node whose ordinary search found "
         "nothing is searched for widely (0: never)", ge=0)
+    wide_spacing: int = _setting(
+        5, "nodes after a wide search that fitted the scan nowhere (new ground) before the "
+        "next: the nodes between see much the same (1: every such node; docs/method.md §5, "
+        "step 5)", ge=1)
     wide_min_gap: int = _setting(100, "nodes just behind the new one left out of the wide "
                                  "search's map (they drifted with it)", ge=1)
     wide_radius: float = _setting(60.0, "m: half-width of the square of positions searched "
@@ -840,7 +844,7 @@ EXPERT_FIELDS = frozenset({
     "matcher.swarm.target_value", "matcher.swarm.params",
     "loop_closure.bearing_bins", "loop_closure.position_floor", "loop_closure.window_margin",
     "loop_closure.max_violations", "loop_closure.inlier_slope",
-    "loop_closure.degenerate_information", "loop_closure.wide_min_gap",
+    "loop_closure.degenerate_information", "loop_closure.wide_min_gap", "loop_closure.wide_spacing",
     "loop_closure.wide_drift", "loop_closure.wide_max_radius", "loop_closure.wide_turn_drift",
     "loop_closure.wide_max_angle", "loop_closure.wide_resolution", "loop_closure.wide_hit_sigma",
     "loop_closure.wide_surface_tolerance", "loop_closure.wide_levels",

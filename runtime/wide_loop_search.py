@@ -22,6 +22,9 @@ it may have drifted and turned. The best pose is a *proposal* only if
   that many back) found the same correction of the graph (the best pose less the
   estimate) within ``wide_agreement``: two separate looks agree on where the robot is.
 
+A search that fits the scan nowhere (new ground) spares the next ``wide_spacing`` − 1 nodes
+their wide search (the back end's rule, ``fitted`` says it).
+
 The proposal then goes through the rest of the loop closure — the swarm's alignment against
 the old nodes nearest to it, the consistency test after optimising. The submap tests of the
 ordinary search (inliers, visibility) are not applied: a scan returning from a long drift
@@ -163,6 +166,7 @@ class WideLoopSearch:
         self._member_d2 = np.zeros(2 * c.submap_nodes + 1)
         self.cell_radius = int(math.ceil(c.wide_distinct_distance / res))
         self.searches = 0  # searches run (old nodes within reach)
+        self.fitted = 0  # poses the last search found scoring wide_min_score (its own tests aside)
         self.proposed = 0  # proposals made
         self.ambiguous = 0  # refused: a distinct pose scored nearly as well
         self.at_edge = 0  # refused: the best lay on the window's edge
@@ -241,6 +245,7 @@ class WideLoopSearch:
         the nodes' scans must stay as they are until it returns."""
         c = self.config
         res = c.wide_resolution
+        self.fitted = 0
         old = node - c.wide_min_gap
         if old <= 0:
             return None
@@ -292,6 +297,7 @@ class WideLoopSearch:
                 break
             yield
         self.searches += 1
+        self.fitted = n_found
         if n_found == 0:
             return None
         if n_found > 1:

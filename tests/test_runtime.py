@@ -192,6 +192,39 @@ def test_a_wide_loop_search_is_spread_over_slices_in_the_budgeted_schedule():
     assert slices > 10 * searches, counts
 
 
+def test_after_a_wide_search_that_fits_nowhere_the_next_nodes_are_not_searched_widely():
+    """A wide search that finds no pose where the scan fits says the robot is on new ground;
+    the ``wide_spacing`` − 1 nodes after it see much the same and are not searched widely. A
+    search that fitted the scan somewhere (a rival, no second look yet) is followed at the
+    next node, as without the rule (docs/method.md §5, "after a long drift")."""
+    angles, records = recorded_drive(160)
+    wide = {"loop_closure.wide_after": 1, "loop_closure.wide_min_gap": 1,
+            "loop_closure.wide_radius": 4.0}
+    searched = {}
+    for spacing in (1, 4):
+        runtime = SlamRuntime(override(LOCKSTEP, {**wide, "loop_closure.wide_spacing": spacing}),
+                              seed=2)
+        back = runtime.slam.back_end
+        log = searched[spacing] = []
+        search = back.wide.search
+
+        def recorded(poses, nodes, node, since=0, sliced=False, search=search, log=log):
+            proposal = yield from search(poses, nodes, node, since, sliced)
+            log.append((node, back.wide.fitted))
+            return proposal
+
+        back.wide.search = recorded
+        feed(runtime, angles, records)
+        runtime.drain()
+    spaced = searched[4]
+    gaps = [(b[0] - a[0], a[1]) for a, b in zip(spaced, spaced[1:])]
+    assert any(fitted == 0 for _, fitted in gaps) and any(fitted > 0 for _, fitted in gaps)
+    assert all(gap >= 4 for gap, fitted in gaps if fitted == 0), gaps
+    assert any(gap < 4 for gap, fitted in gaps if fitted > 0), gaps
+    assert len(spaced) < len(searched[1])
+    assert any(b[0] - a[0] < 4 and a[1] == 0 for a, b in zip(searched[1], searched[1][1:]))
+
+
 # ---------------------------------------------------------------------- sessions
 RUN_AND_DIE = textwrap.dedent(
     """
