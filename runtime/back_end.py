@@ -90,7 +90,8 @@ class BackEnd:
         self._wide_steps = None  # the wide search under way (WideLoopSearch.search), if any
         self.guess = np.zeros(3)  # the proposal: the node's pose in the candidate's frame
         self.last_closure = 0  # the last node closed with an old one (wide_min_gap back)
-        self.last_unfit = -1  # the last node whose scan the wide search fitted nowhere
+        self.wide_from = 0  # the first node a wide search may run at (wide_spacing after one
+        # that fitted its scan nowhere)
         self.cost = np.zeros(len(SLICE_NAMES))  # expected seconds per slice kind (decaying max)
         self.waited = 0  # ticks the next slice has been deferred in a row
         self.enqueued = 0
@@ -180,7 +181,7 @@ class BackEnd:
                 proposal = stop.value
             self._wide_steps = None
             if self.wide.fitted == 0:  # new ground: the next nodes see much the same
-                self.last_unfit = self.node
+                self.wide_from = self.node + self.loops.config.wide_spacing
             if proposal is None:
                 self._finish()
                 return
@@ -250,7 +251,7 @@ class BackEnd:
         lc = self.loops.config
         if (not self.widened and lc.wide_after > 0
                 and self.node - self.last_closure >= lc.wide_after
-                and (self.last_unfit < 0 or self.node - self.last_unfit >= lc.wide_spacing)):
+                and self.node >= self.wide_from):
             self.widened = True
             self.phase = WIDE
         else:
@@ -398,7 +399,7 @@ class BackEnd:
             "z": self.z.copy(), "z_info": self.z_info.copy(), "cost": self.cost.copy(),
             "wide": self.wide.state(), "guess": self.guess.copy(),
             "widened": self.widened, "last_closure": self.last_closure,
-            "last_unfit": self.last_unfit,
+            "wide_from": self.wide_from,
             "failed": self.failed[: self.n_failed].copy(), "failed_node": self.failed_node,
             "failed_revision": self.failed_revision,
             "slices": self.slices.copy(),
@@ -439,7 +440,7 @@ class BackEnd:
         self.widened = bool(state["widened"])
         self._wide_steps = None  # a wide search under way begins again: it keeps no state
         self.last_closure = int(state["last_closure"])
-        self.last_unfit = int(state.get("last_unfit", -1))  # older sessions: none kept
+        self.wide_from = int(state.get("wide_from", 0))  # older sessions: none kept
         self.n_failed = len(failed)
         self.failed[: self.n_failed] = failed
         self.failed_node = int(state.get("failed_node", -1))

@@ -166,7 +166,7 @@ class WideLoopSearch:
         self._member_d2 = np.zeros(2 * c.submap_nodes + 1)
         self.cell_radius = int(math.ceil(c.wide_distinct_distance / res))
         self.searches = 0  # searches run (old nodes within reach)
-        self.fitted = 0  # poses the last search found scoring wide_min_score (its own tests aside)
+        self.fitted = 0  # distinct poses (0-2) the last search found scoring wide_min_score
         self.proposed = 0  # proposals made
         self.ambiguous = 0  # refused: a distinct pose scored nearly as well
         self.at_edge = 0  # refused: the best lay on the window's edge

@@ -97,7 +97,7 @@ def make_workspace(n_members: int, dim: int, n_params: int) -> SwarmWorkspace:
 @njit(cache=True)
 def reset_run(
     ws, max_iterations, stagnation_iterations, stagnation_tol, target_value, max_evaluations,
-    stall_iterations=0, stall_tol=0.0
+    stall_iterations, stall_tol
 ):
     """Clear the run scalars before a new minimisation (``max_evaluations`` <= 0: no budget;
     ``stall_iterations`` 0: no stall rule)."""
