@@ -689,8 +689,9 @@ def build_parser() -> argparse.ArgumentParser:
                                          "replay's trajectory.tum)")
     au.add_argument("--json", help="write the audit (and every contradicted relation) here")
     au.add_argument("--min-gain", type=float, default=0.2,
-                    help="share of the second scan's points ICP from the relation must fit "
-                         "in addition for the scans to contradict it")
+                    help="share of the second scan's points ICP (from the relation, or from "
+                         "odometry's motion for a relation under 10 s) must fit in addition "
+                         "for the scans to contradict it")
     au.add_argument("--plots", metavar="DIR", help="write the audit's figure (PNG) here "
                                                    "(extra 'plots')")
     au.set_defaults(func=_relations_audit)

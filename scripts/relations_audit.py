@@ -5,10 +5,12 @@ A Kümmerle relation says where the scan at ``t2`` lies seen from the scan at ``
 two scans overlap, the scans themselves can check it: place the second on the first by the
 relation and count the share of its points within ``inlier_distance`` of the first's; then let
 ICP start from the relation (and from it turned by ``HEADING_STARTS_DEG``: a relation a few
-degrees off is outside point-to-point ICP's reach) and count again at the best it finds. A
-right relation is already at (or within a centimetre or two of) the best fit, so ICP gains
-nothing; a relation the scans contradict gains ``min_gain`` or more once ICP moves it. A
-relation whose scans do not overlap cannot be checked and is never flagged.
+degrees off is outside point-to-point ICP's reach) and, for a relation shorter than
+``ODOMETRY_START_GAP``, from odometry's own motion between the two scans (a relation off by
+more than those turns; over a few seconds odometry drifts far less), and count again at the
+best it finds. A right relation is already at (or within a centimetre or two of) the best fit,
+so ICP gains nothing; a relation the scans contradict gains ``min_gain`` or more once ICP moves
+it. A relation whose scans do not overlap cannot be checked and is never flagged.
 
 Scored apart on the relations the scans confirm and on those they contradict, a trajectory
 shows how much of its relation error is the reference's own: an error there is not the SLAM's.
@@ -41,7 +43,7 @@ from swarmslam.runtime.scan import PointScan
 from swarmslam.runtime.writers import write_json_atomic
 from swarmslam.carmen import read_carmen
 from swarmslam.icp import icp
-from swarmslam.metrics import LOCAL_GAP, kummerle, match_relations, relation_errors
+from swarmslam.metrics import LOCAL_GAP, SHORT_GAP, kummerle, match_relations, relation_errors
 from swarmslam.plots import relations_audit_figure, require_matplotlib
 from swarmslam.progress import Progress
 from swarmslam.relations import Relations, read_relations
@@ -50,12 +52,16 @@ from swarmslam.replay import robot_frame_scan
 from swarmslam.tum import read_tum
 
 INLIER_DISTANCE = 0.2  # m: a point this near the other scan's points fits it
-MIN_GAIN = 0.2  # share of points: ICP from the relation fitting this many more contradicts it
+MIN_GAIN = 0.2  # share of points: ICP's best fitting this many more contradicts the relation
 MAX_CORRESPONDENCE = 0.5  # m: ICP's pairing distance (a relation off by more is not refined)
 MIN_POINTS = 10  # points a scan needs to be checked
 # ICP's starts: the relation, and the relation turned this much (°). Wider turns flag right
 # relations between scans that barely overlap (Intel: 2 of 2,984 at ±16°, none at ±8°).
 HEADING_STARTS_DEG = (0.0, -8.0, 8.0)
+# s: relations shorter than this are also refined from odometry's motion between their scans
+# (fr-clinic: 3-7 s relations 11-17° off, in stretches where the scans fit odometry's motion and
+# not the reference's; docs/method.md §7.1). Longer, odometry's drift makes it no better a start.
+ODOMETRY_START_GAP = SHORT_GAP
 
 
 @dataclass
@@ -96,9 +102,10 @@ def scan_fit(reference_tree: cKDTree, points, pose, inlier_distance: float) -> f
 
 def audit_scans(scans, stamps, relations: Relations, inlier_distance: float = INLIER_DISTANCE,
                 min_gain: float = MIN_GAIN, max_correspondence: float = MAX_CORRESPONDENCE,
-                progress: Progress | None = None) -> Audit:
+                progress: Progress | None = None, odometry=None) -> Audit:
     """Each relation checked against ``scans`` (robot-frame points, one (n, 2) array per
-    entry of ``stamps``): see the module's docstring."""
+    entry of ``stamps``): see the module's docstring. ``odometry``: the pose odometry gave
+    with each scan ((n, 3), or None: no start from it)."""
     n = len(relations)
     i, j, found = match_relations(stamps, relations)
     fit, fit_aligned = np.zeros(n), np.zeros(n)
@@ -116,8 +123,11 @@ def audit_scans(scans, stamps, relations: Relations, inlier_distance: float = IN
         checked[k] = True
         fit[k] = scan_fit(tree, b, relations.delta[k], inlier_distance)
         fit_aligned[k] = -1.0
-        for turn in HEADING_STARTS_DEG:
-            start = compose(relations.delta[k], np.array([0.0, 0.0, np.radians(turn)]))
+        starts = [compose(relations.delta[k], np.array([0.0, 0.0, np.radians(turn)]))
+                  for turn in HEADING_STARTS_DEG]
+        if odometry is not None and abs(relations.t2[k] - relations.t1[k]) < ODOMETRY_START_GAP:
+            starts.append(between(odometry[j[k]], odometry[i[k]]))  # δ = x_j ⊖ x_i
+        for start in starts:
             aligned, _ = icp(a, b, start, max_correspondence=max_correspondence, tree=tree)
             aligned_fit = scan_fit(tree, b, aligned, inlier_distance)
             if aligned_fit > fit_aligned[k]:
@@ -201,12 +211,13 @@ def audit_command(log_path, relations_path, trajectory_path=None, json_path=None
     stamps, poses = read_tum(trajectory_path) if trajectory_path else (None, None)
     scans, scan_stamps, odometry = log_scans(log_path)
     progress = Progress(len(relations), "audit")
-    audit = audit_scans(scans, scan_stamps, relations, min_gain=min_gain, progress=progress)
+    audit = audit_scans(scans, scan_stamps, relations, min_gain=min_gain, progress=progress,
+                        odometry=odometry)
     progress.close()
     result = {"log": str(log_path), "relations_file": str(relations_path),
               **audit.summary(relations)}
     print(f"{result['checked']} of {result['relations']} relations checked against their "
-          f"scans; {result['contradicted']} contradicted (ICP from the relation fits "
+          f"scans; {result['contradicted']} contradicted (ICP from the relation or odometry fits "
           f"≥ {min_gain:.0%} more of the points): {result['contradicted_local']} of "
           f"{result['checked_local']} local, {result['contradicted_global']} of "
           f"{result['checked_global']} global")

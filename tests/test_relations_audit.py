@@ -12,7 +12,7 @@ from swarmslam.runtime.pose import between, compose
 from swarmslam.runtime.warm_up import loop_path, room_world, scan_at
 from swarmslam.carmen import flaser_angles
 from swarmslam.cli import main
-from swarmslam.relations import relations_text
+from swarmslam.relations import Relations, relations_text
 from swarmslam.tum import write_tum
 
 
@@ -100,3 +100,34 @@ def test_a_bad_min_gain_is_refused_before_any_work(tmp_path, capsys):
     assert main(["relations", "audit", str(tmp_path / "none.clf"), str(tmp_path / "none"),
                  "--min-gain", "0"]) == 2
     assert "--min-gain" in capsys.readouterr().err
+
+
+def test_a_relation_far_off_in_heading_is_refined_from_odometrys_motion(tmp_path):
+    # A relation off by 0.6 m and 17° lies beyond ICP's reach from the relation and its ±8°
+    # turns: from there ICP settles on a wrong fit. Odometry's motion between the two scans
+    # (the truth in this log) is a start near the right pose, and the audit's correction then
+    # takes the relation back to the truth.
+    poses, stamps = write_room_log(tmp_path / "room.clf.gz")
+    scans, scan_stamps, odometry = relations_audit.log_scans(tmp_path / "room.clf.gz")
+    i = np.arange(len(poses) - 2)
+    j = i + 2
+    delta = between(poses[j], poses[i])
+    displacement = np.array([0.0, 0.6, 0.3])
+    delta[1::2] = compose(delta[1::2], displacement)
+    relations = Relations(stamps[i], stamps[j], delta)
+    back = between(np.zeros(3), displacement)
+
+    with_odometry = relations_audit.audit_scans(scans, scan_stamps, relations,
+                                                odometry=odometry)
+    assert with_odometry.contradicted.tolist() == [False, True] * (len(i) // 2)
+    assert np.abs(with_odometry.correction[1::2] - back).max() < 0.05
+    assert with_odometry.fit_aligned[1::2].min() > 0.75
+
+    without = relations_audit.audit_scans(scans, scan_stamps, relations)
+    assert np.abs(without.correction[1::2] - back).max(axis=1).max() > 0.3
+
+    slow = 100.0 + np.arange(len(poses)) * relations_audit.ODOMETRY_START_GAP / 2
+    far = relations_audit.audit_scans(  # scans this far apart: odometry is no start
+        scans, slow, Relations(slow[i], slow[j], delta), odometry=odometry)
+    assert far.checked.all()
+    assert np.abs(far.correction[1::2] - back).max(axis=1).max() > 0.3
