@@ -59,7 +59,7 @@ MIN_POINTS = 10  # points a scan needs to be checked
 # relations between scans that barely overlap (Intel: 2 of 2,984 at ±16°, none at ±8°).
 HEADING_STARTS_DEG = (0.0, -8.0, 8.0)
 # s: relations shorter than this are also refined from odometry's motion between their scans
-# (fr-clinic: 3-7 s relations 11-17° off, in stretches where the scans fit odometry's motion and
+# (fr-clinic: 6 s relations 11-17° off, in stretches where the scans fit odometry's motion and
 # not the reference's; docs/method.md §7.1). Longer, odometry's drift makes it no better a start.
 ODOMETRY_START_GAP = SHORT_GAP
 
