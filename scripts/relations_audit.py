@@ -165,6 +165,38 @@ def scored_apart(stamps, poses, relations: Relations, audit: Audit) -> dict:
     return out
 
 
+GROSS_DEG = 10.0  # °: a short relation off by more is a gross failure, unless its scans contradict it
+
+
+def short_tail_apart(stamps, poses, relations: Relations, audit: Audit,
+                     short_gap: float = SHORT_GAP, gross_deg: float = GROSS_DEG) -> dict:
+    """A trajectory's short relations (under ``short_gap`` s apart) over those the scans do not
+    contradict: their mean and p99 heading error (``eR_short_confirmed_deg``,
+    ``eR_short_confirmed_p99_deg``, ``relations_short_confirmed``); and its short relations off
+    by more than ``gross_deg``°: how many (``eR_short_over_10deg``), how many of them the scans
+    do not contradict (``eR_short_over_10deg_confirmed``: the trajectory's own gross failures)
+    and those listed (``short_over_10deg_confirmed``: t1, t2, eR_deg). Empty without short
+    relations."""
+    ok, _, e_r = relation_errors(stamps, poses, relations)
+    used = np.flatnonzero(ok)
+    short = np.abs(relations.t2[used] - relations.t1[used]) < short_gap
+    if not np.any(short):
+        return {}
+    confirmed = short & ~audit.contradicted[used]
+    gross = short & (e_r > gross_deg)
+    key = f"over_{gross_deg:g}deg"
+    out = {f"eR_short_{key}": int(gross.sum()),
+           f"eR_short_{key}_confirmed": int((gross & confirmed).sum()),
+           f"short_{key}_confirmed": [
+               {"t1": float(relations.t1[r]), "t2": float(relations.t2[r]), "eR_deg": float(e)}
+               for r, e in zip(used[gross & confirmed], e_r[gross & confirmed])],
+           "relations_short_confirmed": int(confirmed.sum())}
+    if np.any(confirmed):
+        out["eR_short_confirmed_deg"] = float(np.mean(e_r[confirmed]))
+        out["eR_short_confirmed_p99_deg"] = float(np.percentile(e_r[confirmed], 99))
+    return out
+
+
 WORST_SHOWN = 10  # the worst relations printed (the JSON keeps WORST_KEPT)
 WORST_KEPT = 50
 
@@ -233,6 +265,14 @@ def audit_command(log_path, relations_path, trajectory_path=None, json_path=None
                 line += (f"; local eT {s['eT_local']:.4f} m, eR {s['eR_local_deg']:.3f}° "
                          f"({s['relations_local']})")
             print(line)
+        result["short"] = short = short_tail_apart(stamps, poses, relations, audit)
+        if "eR_short_confirmed_deg" in short:
+            key = f"over_{GROSS_DEG:g}deg"
+            print(f"  short (< {SHORT_GAP:g} s): eR {short['eR_short_confirmed_deg']:.3f}° "
+                  f"(p99 {short['eR_short_confirmed_p99_deg']:.2f}°) over the "
+                  f"{short['relations_short_confirmed']} the scans do not contradict; "
+                  f"{short[f'eR_short_{key}']} above {GROSS_DEG:g}°, "
+                  f"{short[f'eR_short_{key}_confirmed']} of them not contradicted")
     if trajectory_path:
         result["worst"] = worst_relations(stamps, poses, relations, scan_stamps, odometry, audit)
         print(f"  the {WORST_SHOWN} worst relations of the trajectory (heading):")

@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from swarmslam.bench.report import BEGIN, END, bench_report, headline, results_page
@@ -59,6 +60,38 @@ def test_a_report_shows_the_json_figures_and_a_check_fails_when_they_change(tmp_
     assert any(str(page) in t for t in told)
     assert "**missed**" in results_page(results)
     assert headline(results).startswith(BEGIN)
+
+
+def _slam_row(audited=True, unexplained=(0, 0)):
+    row = {"dataset": "mit", "optimizer": "abc", "odometry": True, "eT_mean": 0.0286,
+           "eT_worst": 0.0289, "eR_deg_mean": 0.401, "eR_deg_worst": 0.405,
+           "eR_short_median_deg_mean": 0.27, "eR_short_p99_deg_mean": 1.79,
+           "eR_short_max_deg_mean": 8.8, "real_time_factor_min": 32.8}
+    if audited:
+        row.update(eR_short_confirmed_deg_mean=0.37, eR_short_confirmed_p99_deg_mean=1.71,
+                   eR_short_over_10deg_confirmed_mean=float(np.mean(unexplained)),
+                   eR_short_over_10deg_confirmed_worst=float(max(unexplained)))
+    return row
+
+
+def test_the_slam_table_shows_short_relations_over_those_the_scans_do_not_contradict(tmp_path):
+    results = tmp_path / "results"
+    results.mkdir()
+    slam = {"benchmark": "slam", "seeds": [0, 1], "summary": [_slam_row()]}
+    (results / "slam.json").write_text(json.dumps(slam))
+    page = results_page(results)
+    assert "| 0.27 / 1.79 / 8.8 | 0.37 / 1.71 / 0.0 (0) | 32.8 |" in page
+    assert ("MIT-CSAIL: no short relation above 10° that its scans do not contradict — **met**"
+            in page)
+    slam["summary"] = [_slam_row(unexplained=(0, 2))]
+    (results / "slam.json").write_text(json.dumps(slam))
+    page = results_page(results)
+    assert "| 0.37 / 1.71 / 1.0 (2) |" in page
+    assert "do not contradict — **missed**" in page
+    slam["summary"] = [_slam_row(audited=False)]  # results recorded before the audit
+    (results / "slam.json").write_text(json.dumps(slam))
+    page = results_page(results)
+    assert "| 0.27 / 1.79 / 8.8 | — | 32.8 |" in page and "contradict —" not in page
 
 
 def _commands(parser, prefix=()):

@@ -66,6 +66,8 @@ def test_true_relations_pass_and_displaced_ones_are_flagged_and_scored_apart(tmp
     assert contradicted["eT"] > 0.4 and contradicted["relations_used"] == wrong.sum()
     printed = capsys.readouterr().out
     assert "contradicted" in printed and "clock: the trajectory's" in printed
+    assert result["short"]["eR_short_confirmed_deg"] < 0.05  # 0.08 rad off: not gross
+    assert result["short"]["eR_short_over_10deg"] == 0 and "0 above 10°" in printed
     # the worst relations of the (true) trajectory: the displaced ones, 0.08 rad off, where
     # odometry (the truth here) errs alike; each with the fastest turn between its scans
     worst = result["worst"]
@@ -131,3 +133,36 @@ def test_a_relation_far_off_in_heading_is_refined_from_odometrys_motion(tmp_path
         scans, slow, Relations(slow[i], slow[j], delta), odometry=odometry)
     assert far.checked.all()
     assert np.abs(far.correction[1::2] - back).max(axis=1).max() > 0.3
+
+
+def test_short_gross_failures_are_told_from_relations_the_scans_contradict(tmp_path):
+    poses, stamps = write_room_log(tmp_path / "room.clf.gz")
+    scans, scan_stamps, odometry = relations_audit.log_scans(tmp_path / "room.clf.gz")
+    i = np.r_[np.arange(len(poses) - 1), np.arange(len(poses) - 2)]
+    j = np.r_[i[: len(poses) - 1] + 1, i[len(poses) - 1:] + 2]
+    slipped = 6  # the trajectory's pose of this scan is turned 17°: a gross failure of ours
+    touches = (i == slipped) | (j == slipped)
+    wrong = (np.arange(len(i)) % 3 == 1) & ~touches  # a bad reference, 14° off
+    delta = between(poses[j], poses[i])
+    delta[wrong] = compose(delta[wrong], np.array([0.4, -0.3, 0.25]))
+    relations = Relations(stamps[i], stamps[j], delta)
+    audit = relations_audit.audit_scans(scans, scan_stamps, relations, odometry=odometry)
+    assert audit.contradicted.tolist() == wrong.tolist()
+
+    trajectory = poses.copy()
+    trajectory[slipped, 2] += 0.3
+    tail = relations_audit.short_tail_apart(stamps, trajectory, relations, audit)
+    assert tail["eR_short_over_10deg"] == wrong.sum() + touches.sum()
+    assert tail["eR_short_over_10deg_confirmed"] == touches.sum()
+    listed = {(r["t1"], r["t2"]) for r in tail["short_over_10deg_confirmed"]}
+    assert listed == {(float(stamps[a]), float(stamps[b])) for a, b in zip(i[touches],
+                                                                          j[touches])}
+    assert tail["relations_short_confirmed"] == (~wrong).sum()
+    assert tail["eR_short_confirmed_deg"] == pytest.approx(
+        np.degrees(0.3) * touches.sum() / (~wrong).sum(), rel=0.01)
+
+    # relations 10 s apart or more are not short: nothing to report
+    later = Relations(stamps[i], stamps[j] + relations_audit.SHORT_GAP, delta)
+    assert relations_audit.short_tail_apart(
+        np.r_[stamps, stamps + relations_audit.SHORT_GAP], np.r_[trajectory, trajectory],
+        later, audit) == {}
