@@ -149,6 +149,17 @@ def log_scans(log_path) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
             np.array([r.odometry for r in lasers], dtype=np.float64).reshape(-1, 3))
 
 
+def audit_log(log_path, relations: Relations, min_gain: float = MIN_GAIN, label: str = "audit"):
+    """``relations`` checked against ``log_path``'s own scans (:func:`audit_scans`, odometry's
+    motion among ICP's starts), with progress: ``(audit, scan stamps, odometry at each)``."""
+    scans, scan_stamps, odometry = log_scans(log_path)
+    progress = Progress(len(relations), label)
+    audit = audit_scans(scans, scan_stamps, relations, min_gain=min_gain, progress=progress,
+                        odometry=odometry)
+    progress.close()
+    return audit, scan_stamps, odometry
+
+
 def scored_apart(stamps, poses, relations: Relations, audit: Audit) -> dict:
     """:func:`kummerle` over all relations, and apart over those the scans do not contradict
     (``confirmed``) and those they do (``contradicted``)."""
@@ -165,7 +176,8 @@ def scored_apart(stamps, poses, relations: Relations, audit: Audit) -> dict:
     return out
 
 
-GROSS_DEG = 10.0  # °: a short relation off by more is a gross failure, unless its scans contradict it
+# °: a short relation off by more is a gross failure, unless its scans contradict it
+GROSS_DEG = 10.0
 
 
 def short_tail_apart(stamps, poses, relations: Relations, audit: Audit,
@@ -241,11 +253,7 @@ def audit_command(log_path, relations_path, trajectory_path=None, json_path=None
         require_matplotlib()
     relations = read_relations(relations_path)
     stamps, poses = read_tum(trajectory_path) if trajectory_path else (None, None)
-    scans, scan_stamps, odometry = log_scans(log_path)
-    progress = Progress(len(relations), "audit")
-    audit = audit_scans(scans, scan_stamps, relations, min_gain=min_gain, progress=progress,
-                        odometry=odometry)
-    progress.close()
+    audit, scan_stamps, odometry = audit_log(log_path, relations, min_gain)
     result = {"log": str(log_path), "relations_file": str(relations_path),
               **audit.summary(relations)}
     print(f"{result['checked']} of {result['relations']} relations checked against their "

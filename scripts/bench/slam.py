@@ -17,9 +17,8 @@ import numpy as np
 from swarmslam.datasets import require
 from swarmslam.metrics import LOCAL_GAP, relation_errors
 from swarmslam.plots import require_matplotlib, slam_errors_over_time, slam_summary
-from swarmslam.progress import Progress
 from swarmslam.relations import read_relations
-from swarmslam.relations_audit import audit_scans, log_scans, short_tail_apart
+from swarmslam.relations_audit import audit_log, short_tail_apart
 from swarmslam.replay import replay_run
 from swarmslam.bench.record import save_results
 
@@ -69,7 +68,7 @@ def bench_slam(data_dir: Path, optimizers=("abc", "pso", "fa"), logs=tuple(LOGS)
         log_path = require(Path(data_dir) / "radish" / log)
         rel_path = require(Path(data_dir) / "radish" / rel)
         relations = read_relations(rel_path)
-        audit = audit_log(log_path, relations, name)
+        audit, _, _ = audit_log(log_path, relations, label=f"audit {name}")
         results["audits"][name] = audit.summary(relations)
         rows = []
         for optimizer in optimizers:
@@ -96,15 +95,6 @@ def bench_slam(data_dir: Path, optimizers=("abc", "pso", "fa"), logs=tuple(LOGS)
     if json_path:
         save_results(json_path, results)
     return results
-
-
-def audit_log(log_path, relations, name):
-    """The log's relations checked against its own scans (swarmslam.relations_audit)."""
-    scans, stamps, odometry = log_scans(log_path)
-    progress = Progress(len(relations), f"audit {name}")
-    audit = audit_scans(scans, stamps, relations, progress=progress, odometry=odometry)
-    progress.close()
-    return audit
 
 
 def audited_tail(runtime, relations, audit) -> dict:
