@@ -302,9 +302,19 @@ class FrontEndConfig(Section):
     odometry_gate_share: tuple[float, float] = _setting(
         (0.2, 0.35), "shares of odometry's step (translation, rotation) added to the gate", ge=0)
     odometry_gate_fit: float = _setting(
-        0.1, "a match the gate refuses for its heading (or against a stale reading) stands when "
-        "its share of points on the keyframe's surfaces exceeds odometry's prediction's by this "
-        "much: the scans overrule odometry (docs/method.md §6.1); 1: never", ge=0, le=1)
+        0.1, "a match the gate refuses against a stale reading (odometry's last one again) "
+        "stands when its share of points on the keyframe's surfaces exceeds odometry's "
+        "prediction's by this much: the scans overrule odometry (docs/method.md §6.1); 1: never",
+        ge=0, le=1)
+    odometry_gate_explained: float = _setting(
+        0.45, "a match the gate refuses for its heading against a new reading stands when it "
+        "fits more than this share of the points odometry's prediction misses (docs/method.md "
+        "§6.1); 1: never", ge=0, le=1)
+    odometry_gate_distance: float = _setting(
+        0.15, "m: against a new reading, the fits of a match and of odometry's prediction count "
+        "the points this near a surface (plus track_inlier_slope per m of range): narrower than "
+        "track_inlier_distance, which tells a lost match, it tells two poses a few degrees "
+        "apart", gt=0)
     stale_turn_window: float = _setting(
         0.6, "rad: after odometry's reading came again unchanged (stale), a lost match is "
         "sought again this far either side in heading (a robot may have turned in place "
@@ -836,6 +846,7 @@ EXPERT_FIELDS = frozenset({
     "front_end.track_inlier_slope", "front_end.curvature_step", "front_end.window_margin",
     "front_end.stale_turn_window", "front_end.degenerate_information",
     "front_end.odometry_gate_share", "front_end.odometry_gate_fit",
+    "front_end.odometry_gate_explained", "front_end.odometry_gate_distance",
     "matcher.surface_bend", "matcher.surface_gap_ratio", "matcher.coarse_radius",
     "matcher.polish_step", "matcher.polish_halvings", "matcher.polish_evaluations",
     "matcher.grid_cells", "matcher.occupied_radius", "matcher.robot_diameter",

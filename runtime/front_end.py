@@ -64,6 +64,21 @@ def contradicts_odometry(pose, guess, step, config: FrontEndConfig,
                 or (heading and abs(correction[2]) > gate[1] + share[1] * abs(step[2])))
 
 
+def scans_overrule(fit: float, predicted: float, stale: bool, config: FrontEndConfig) -> bool:
+    """Whether a match fitting ``fit`` of its points on the keyframe's surfaces fits clearly
+    better than odometry's prediction, which fits ``predicted`` (docs/method.md §6.1). Against
+    a ``stale`` reading — odometry's last one again, which says nothing of the motion since —
+    a gain above ``odometry_gate_fit`` suffices. A new reading is a measurement: the match must
+    fit more than ``odometry_gate_explained`` of the points the prediction misses (both fits
+    counted within ``odometry_gate_distance``). A fixed
+    gain cannot tell a match that fits every point where the prediction misses a tenth
+    (odometry a few degrees off in a turn) from one that fits two thirds where it fits half
+    (a hall whose walls fit a slip either way)."""
+    if stale:
+        return fit - predicted > config.odometry_gate_fit
+    return fit - predicted > config.odometry_gate_explained * (1.0 - predicted)
+
+
 class FrontEnd:
     def __init__(self, config: SlamConfig, graph: PoseGraph, nodes: NodeScans, seed: int = 0,
                  initial_pose=None):
@@ -271,9 +286,13 @@ class FrontEnd:
         return self.nodes.place(self._submap_poses, self._submap_nodes[:m], m - 1,
                                 self._submap, rows=range(m))
 
-    def _inliers(self, scan, pose) -> float:
+    def _inliers(self, scan, pose, distance: float | None = None) -> float:
+        """The share of ``scan``'s points at ``pose`` within ``distance`` (default
+        ``track_inlier_distance``), plus ``track_inlier_slope`` per m of range, of the
+        keyframe's surfaces."""
         c = self.config.front_end
-        return self.matcher.inlier_fraction(scan, self.reference, pose, c.track_inlier_distance,
+        return self.matcher.inlier_fraction(scan, self.reference, pose,
+                                            distance or c.track_inlier_distance,
                                             c.track_inlier_slope)
 
     def _lost(self, scan, pose, guess, step, have_odometry: bool, inside: bool) -> bool:
@@ -295,15 +314,23 @@ class FrontEnd:
 
     def _overrules(self, scan, pose, fit: float, guess, step, inside: bool) -> bool:
         """A match (``fit``: its share of points on the keyframe's surfaces) is trusted over
-        odometry's prediction ``guess`` when it fits and clearly better than the prediction
-        does, and is an optimum inside its search box, not one pressed against its edge —
-        where odometry's heading is what errs, or its reading is stale: a match that only
-        moves a new reading's position may be one slid along a corridor, and odometry's
-        position errs little between scans unless its heading does."""
+        odometry's prediction ``guess`` when it is an optimum inside its search box, not one
+        pressed against its edge, fits, and fits clearly better than the prediction does
+        (:func:`scans_overrule`) — unless it moves a new reading's position alone: that match
+        may have slid along a corridor, and odometry's position errs little between scans
+        unless its heading does (docs/method.md §6.1)."""
         c = self.config.front_end
-        return (inside and fit >= c.min_track_inliers
-                and (self.stale or contradicts_odometry(pose, guess, step, c, position=False))
-                and fit >= self._inliers(scan, guess) + c.odometry_gate_fit)
+        if not inside or fit < c.min_track_inliers:
+            return False
+        if (not self.stale and contradicts_odometry(pose, guess, step, c, heading=False)
+                and not contradicts_odometry(pose, guess, step, c, position=False)):
+            return False
+        if self.stale:
+            predicted = self._inliers(scan, guess)
+        else:  # a narrower band than a lost match's tells two poses a few degrees apart
+            fit, predicted = (self._inliers(scan, p, c.odometry_gate_distance)
+                              for p in (pose, guess))
+        return scans_overrule(fit, predicted, self.stale, c)
 
     def _constrained(self, scan, pose, guess):
         """The match where the scan pins it, the prediction where it does not

@@ -160,7 +160,8 @@ def test_the_suites_robot_cases_read_back_from_their_names():
 def test_scans_overrule_stale_odometry_in_fast_turns(tmp_path):
     """A robot whose odometry is read every 0.8 s turning at up to 2 rad/s (the simulator's
     MIT-CSAIL): odometry predicts no motion for four scans, then all of it at once. Trusting
-    odometry over the scans there (``odometry_gate_fit = 1``: the scans never overrule it)
+    odometry over the scans there (``odometry_gate_fit`` and ``odometry_gate_explained`` 1:
+    the scans never overrule it)
     leaves heading errors of tens of degrees between scans seconds apart; the defaults
     follow the scans."""
     made = tmp_path / "robot.clf"
@@ -169,8 +170,9 @@ def test_scans_overrule_stale_odometry_in_fast_turns(tmp_path):
     relations = read_relations(tmp_path / "robot.relations")
     scores = {}
     for name, config in (("defaults", SlamConfig()),
-                         ("odometry trusted", override(SlamConfig(),
-                                                       {"front_end.odometry_gate_fit": 1.0}))):
+                         ("odometry trusted", override(SlamConfig(), {
+                             "front_end.odometry_gate_fit": 1.0,
+                             "front_end.odometry_gate_explained": 1.0}))):
         _, runtime = replay_run(made, config=config, label=name)
         stamps, poses = runtime.slam.trajectory()
         scores[name] = kummerle(stamps, poses, relations)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from swarmslam.runtime.config import SlamConfig, override
+from swarmslam.runtime.front_end import scans_overrule
 from swarmslam.runtime.pose import between, compose, wrap_angle
 from swarmslam.runtime.pose_graph import LOOP
 from swarmslam.runtime.scan import PointScan
@@ -237,10 +238,11 @@ def test_match_contradicting_odometry_is_not_trusted_unless_the_scans_clearly_si
     """A scan taken as if the robot had turned 12° more than odometry (right here) says. The
     front end cannot tell such a scan from odometry that erred: it fits the keyframe fully at
     the turned pose, far better than at odometry's prediction. With the scans never allowed to
-    overrule odometry (``odometry_gate_fit`` 1), the gate keeps odometry's prediction for it
+    overrule odometry (``odometry_gate_fit`` and ``odometry_gate_explained`` 1), the gate keeps odometry's prediction for it
     and tracking goes on from there; by default the scans are believed (docs/method.md
     §6.1: real odometry lags fast turns by that much); with no gate at all, likewise."""
-    refused = override(SlamConfig(), {"front_end.odometry_gate_fit": 1.0})
+    refused = override(SlamConfig(), {"front_end.odometry_gate_fit": 1.0,
+                                      "front_end.odometry_gate_explained": 1.0})
     slam, heading_error = _glitch_run(refused)
     # (the glitch scan became a node here, so the next scans match against it until the next
     # node: also gated)
@@ -252,6 +254,56 @@ def test_match_contradicting_odometry_is_not_trusted_unless_the_scans_clearly_si
     ungated, heading_error = _glitch_run(override(SlamConfig(), {"front_end.odometry_gate": None}))
     assert ungated.front_end.lost_matches == 0 and ungated.front_end.overruled_odometry == 0
     assert heading_error[20] > 8.0, heading_error[20]
+
+
+def test_a_rescued_match_within_the_gate_stands_when_it_fits_far_better():
+    """A robot turning on the spot 30° a scan whose odometry reading jumps 18° ahead once:
+    the match around its prediction is pressed against its box's edge (±17°), so it is
+    sought again around the scans' own motion and found where the robot is. It corrects
+    odometry by less than the gate allows over a 48° step, so it contradicts nothing, and it
+    fits far better than the prediction: it stands (docs/method.md §6.1). When new readings
+    are never overruled (``odometry_gate_explained`` 1) the prediction stands in, 18° off."""
+    loop = loop_path(80)
+    world = room_world(0, size=(12.0, 9.0), boxes=14, walls=0, keep_clear=loop)
+    turn, jump = np.radians(30.0), np.radians(18.0)
+    path = np.array([[loop[0, 0], loop[0, 1], loop[0, 2] + k * turn] for k in range(10)])
+    truth = between(path, path[0])
+
+    def heading_errors(config):
+        slam = GraphSlam(config, seed=0)
+        scan = PointScan(len(ANGLES))
+        headings = []
+        for k in range(len(path)):
+            reading = compose(path[k], [0.0, 0.0, jump]) if k >= 6 else path[k]
+            scan.set_ranges(scan_at(world, path[k], ANGLES, 12.0, 0.01), ANGLES, 0.05, 12.0)
+            headings.append(slam.step(scan, reading, float(k)).pose[2])
+        return slam, np.degrees(np.abs(wrap_angle(np.array(headings) - truth[:, 2])))
+
+    slam, errors = heading_errors(SlamConfig())
+    assert slam.front_end.rescued_matches >= 1, errors
+    assert errors.max() < 1.0, errors
+    refused = override(SlamConfig(), {"front_end.odometry_gate_explained": 1.0})
+    slam, errors = heading_errors(refused)
+    assert slam.front_end.rescued_matches == 0
+    assert errors[6] > 15.0, errors
+
+
+def test_the_scans_overrule_a_new_reading_by_the_share_of_its_misses_they_fit():
+    """Against a new reading the match must fit much of what odometry's prediction misses:
+    every point against nine in ten (a prediction a few degrees off in a turn) overrules it;
+    two thirds against a half (a hall whose walls fit a slip either way) does not. Against a
+    stale reading, which says nothing of the motion, a plain gain above ``odometry_gate_fit``
+    suffices."""
+    c = SlamConfig().front_end
+    assert scans_overrule(1.0, 0.91, stale=False, config=c)
+    assert not scans_overrule(0.66, 0.49, stale=False, config=c)
+    assert not scans_overrule(1.0, 0.91, stale=True, config=c)  # a gain of 0.09 < 0.1
+    assert scans_overrule(0.63, 0.46, stale=True, config=c)
+    assert not scans_overrule(0.9, 0.9, stale=False, config=c)
+    never = override(SlamConfig(), {"front_end.odometry_gate_explained": 1.0,
+                                    "front_end.odometry_gate_fit": 1.0}).front_end
+    assert not any(scans_overrule(1.0, p, stale, never) for p in (0.0, 0.5, 0.99)
+                   for stale in (False, True))
 
 
 def test_a_match_that_only_moves_odometrys_position_does_not_overrule_it():
