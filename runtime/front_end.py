@@ -70,10 +70,10 @@ def scans_overrule(fit: float, predicted: float, stale: bool, config: FrontEndCo
     a ``stale`` reading — odometry's last one again, which says nothing of the motion since —
     a gain above ``odometry_gate_fit`` suffices. A new reading is a measurement: the match must
     fit more than ``odometry_gate_explained`` of the points the prediction misses (both fits
-    counted within ``odometry_gate_distance``). A fixed
-    gain cannot tell a match that fits every point where the prediction misses a tenth
-    (odometry a few degrees off in a turn) from one that fits two thirds where it fits half
-    (a hall whose walls fit a slip either way)."""
+    counted within ``odometry_gate_distance``). A fixed gain cannot tell a match that fits
+    every point where the prediction misses a tenth (odometry a few degrees off in a turn)
+    from one that fits two thirds where it fits half (a hall whose walls fit a slip either
+    way)."""
     if stale:
         return fit - predicted > config.odometry_gate_fit
     return fit - predicted > config.odometry_gate_explained * (1.0 - predicted)
