@@ -161,9 +161,8 @@ def test_scans_overrule_stale_odometry_in_fast_turns(tmp_path):
     """A robot whose odometry is read every 0.8 s turning at up to 2 rad/s (the simulator's
     MIT-CSAIL): odometry predicts no motion for four scans, then all of it at once. Trusting
     odometry over the scans there (``odometry_gate_fit`` and ``odometry_gate_explained`` 1:
-    the scans never overrule it)
-    leaves heading errors of tens of degrees between scans seconds apart; the defaults
-    follow the scans."""
+    the scans never overrule it) leaves heading errors of tens of degrees between scans
+    seconds apart; the defaults follow the scans."""
     made = tmp_path / "robot.clf"
     assert main(["simlog", str(made), "--site", "building", "--scanner", "sick-0.5",
                  "--rate", "4.7", "--seed", "5", "--seconds", "150", "--effects", "robot"]) == 0

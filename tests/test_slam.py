@@ -238,9 +238,10 @@ def test_match_contradicting_odometry_is_not_trusted_unless_the_scans_clearly_si
     """A scan taken as if the robot had turned 12° more than odometry (right here) says. The
     front end cannot tell such a scan from odometry that erred: it fits the keyframe fully at
     the turned pose, far better than at odometry's prediction. With the scans never allowed to
-    overrule odometry (``odometry_gate_fit`` and ``odometry_gate_explained`` 1), the gate keeps odometry's prediction for it
-    and tracking goes on from there; by default the scans are believed (docs/method.md
-    §6.1: real odometry lags fast turns by that much); with no gate at all, likewise."""
+    overrule odometry (``odometry_gate_fit`` and ``odometry_gate_explained`` 1), the gate
+    keeps odometry's prediction for it and tracking goes on from there; by default the scans
+    are believed (docs/method.md §6.1: real odometry lags fast turns by that much); with no
+    gate at all, likewise."""
     refused = override(SlamConfig(), {"front_end.odometry_gate_fit": 1.0,
                                       "front_end.odometry_gate_explained": 1.0})
     slam, heading_error = _glitch_run(refused)
