@@ -291,8 +291,9 @@ class FrontEnd:
         ``track_inlier_distance``), plus ``track_inlier_slope`` per m of range, of the
         keyframe's surfaces."""
         c = self.config.front_end
-        return self.matcher.inlier_fraction(scan, self.reference, pose,
-                                            distance or c.track_inlier_distance,
+        if distance is None:
+            distance = c.track_inlier_distance
+        return self.matcher.inlier_fraction(scan, self.reference, pose, distance,
                                             c.track_inlier_slope)
 
     def _lost(self, scan, pose, guess, step, have_odometry: bool, inside: bool) -> bool:
