@@ -176,6 +176,10 @@ def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, s
                              session_changes)
     config = runtime.config
     slam = runtime.slam
+    # Every kernel compiled or loaded before the clock starts, as a robot warms up before its
+    # first tick: the real-time factor is the run's, not the compiler's (after a checkout that
+    # changed a source, numba compiles every kernel afresh: docs/runtime.md §8).
+    warm_up_seconds = runtime.warm_up()
     scan = PointScan(max(len(r.ranges) for r in lasers))
     latencies = np.zeros(len(lasers))
     progress = Progress(len(lasers), label)
@@ -197,6 +201,7 @@ def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, s
     wall = time.perf_counter() - start_time
     data_seconds = log_seconds(lasers)
     timing = {
+        "warm_up_seconds": warm_up_seconds,
         "wall_seconds": wall,
         "data_seconds": data_seconds,
         "real_time_factor": data_seconds / wall if wall > 0 else float("inf"),
