@@ -109,8 +109,12 @@ def max_speed(scans, relations, config, echo, seed: int = 0) -> dict:
 
 def traced(scans, config, ticks) -> dict:
     """Traced memory growth per tick after warm-up, in two consecutive windows (tracemalloc
-    slows Python: run apart from the timed pass). A per-tick leak grows alike in both."""
+    slows Python: run apart from the timed pass). A per-tick leak grows alike in both. The
+    runtime warms up first, as every pass does: a kernel first met after the warm-up scans
+    (the wide loop search's, on Intel after scan 1,000) would otherwise count numba's loading
+    of its machine code as growth."""
     runtime = SlamRuntime(config)
+    runtime.warm_up()
 
     def run(chunk):
         for pts, n, odometry, stamp in chunk:
