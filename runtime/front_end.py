@@ -323,15 +323,14 @@ class FrontEnd:
         c = self.config.front_end
         if not inside or fit < c.min_track_inliers:
             return False
-        if (not self.stale and contradicts_odometry(pose, guess, step, c, heading=False)
+        if self.stale:
+            return scans_overrule(fit, self._inliers(scan, guess), True, c)
+        if (contradicts_odometry(pose, guess, step, c, heading=False)
                 and not contradicts_odometry(pose, guess, step, c, position=False)):
             return False
-        if self.stale:
-            predicted = self._inliers(scan, guess)
-        else:  # a narrower band than a lost match's tells two poses a few degrees apart
-            fit, predicted = (self._inliers(scan, p, c.odometry_gate_distance)
-                              for p in (pose, guess))
-        return scans_overrule(fit, predicted, self.stale, c)
+        # a narrower band than a lost match's tells two poses a few degrees apart
+        fit, predicted = (self._inliers(scan, p, c.odometry_gate_distance) for p in (pose, guess))
+        return scans_overrule(fit, predicted, False, c)
 
     def _constrained(self, scan, pose, guess):
         """The match where the scan pins it, the prediction where it does not
