@@ -46,7 +46,8 @@ EDGES_FULL_STATUS = "capacity reached: no more loop closures"
 class BackEnd:
     def __init__(self, config: SlamConfig, graph: PoseGraph, nodes: NodeScans, information,
                  seed: int = 0):
-        """``information()`` gives a new edge's information matrix (the front end's)."""
+        """``information(loop=True)`` gives a new loop edge's information matrix (the front
+        end's)."""
         lc, rc = config.loop_closure, config.runtime
         self.config = config
         self.graph, self.nodes, self.information = graph, nodes, information
@@ -313,7 +314,7 @@ class BackEnd:
         if self._at_edge(pose, guess, window):  # the optimum lies at or beyond the box
             loops.rejected_match += 1
             return None
-        self.z_info[:] = self.information()
+        self.z_info[:] = self.information(loop=True)
         ratio = self.config.front_end.degeneracy_ratio
         if ratio > 0:  # along a corridor the guess stands in, the edge weak there
             fc = self.config.front_end

@@ -284,8 +284,11 @@ class FrontEndConfig(Section):
     information: str = _setting(
         "fixed", "edge information: 'fixed' diag(1/σt², 1/σt², 1/σθ²), 'paper' Eq. 20's I/σλ²",
         choices=INFORMATION_MODES)
-    sigma_translation: float = _setting(0.05, "m, σt of the fixed information", gt=0)
-    sigma_rotation: float = _setting(0.02, "rad, σθ of the fixed information", gt=0)
+    sigma_translation: float = _setting(0.025, "m, σt of a node edge's fixed information",
+                                        gt=0)
+    sigma_rotation: float = _setting(
+        0.005, "rad, σθ of a node edge's fixed information (five to ten times what the match's "
+        "curvature says: docs/method.md §4.2)", gt=0)
     min_track_inliers: float = _setting(
         0.5, "share of points on the keyframe's surfaces below which tracking is lost",
         ge=0, le=1)
@@ -331,8 +334,8 @@ class FrontEndConfig(Section):
         ge=0, lt=1)
     degenerate_information: float = _setting(
         0.1, "the least share of its information an edge keeps along a degenerate direction "
-        "(there its value is odometry's prediction: 0.1 of 1/sigma_translation^2 is 0.16 m per "
-        "edge, the odometry gate's allowance over a node's step)", gt=0, le=1)
+        "(there its value is odometry's prediction: 0.1 of 1/sigma_translation^2 is 0.079 m per "
+        "edge, half the odometry gate's allowance over a node's step)", gt=0, le=1)
     curvature_step: tuple[float, float] = _setting(
         (0.05, 0.01), "finite-difference steps (m, rad) of the match's curvature", gt=0)
     spread_corrections: bool = _setting(
@@ -353,6 +356,10 @@ class LoopClosureConfig(Section):
                                    ge=1)
     max_candidates: int = _setting(8, "gated candidates kept, closest first", ge=1, le=10_000)
     max_attempts: int = _setting(3, "alignments tried per new node", ge=1, le=10_000)
+    sigma_translation: float = _setting(
+        0.05, "m, σt of a loop edge's fixed information: a match against a submap the graph "
+        "placed, looser than a node edge's (docs/method.md §4.2)", gt=0)
+    sigma_rotation: float = _setting(0.02, "rad, σθ of a loop edge's fixed information", gt=0)
     chi2_gate: float = _setting(7.81, "χ²₃ at 95% on the new edge's own error after optimising",
                                 gt=0)
     total_gate: float = _setting(16.27, "χ²₃ at 99.9% on the rise of the total error", gt=0)

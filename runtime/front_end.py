@@ -217,12 +217,13 @@ class FrontEnd:
         self.nodes.load(self.keyframe, self._node_scan)
         self.matcher.build_reference(self._submap_of(self.keyframe, placed), self.reference)
 
-    def information(self) -> np.ndarray:
-        """An edge's information matrix: fixed, or Eq. 20's I/σλ² (docs/method.md §4.2)."""
-        c = self.config.front_end
-        if c.information == "paper":
+    def information(self, loop: bool = False) -> np.ndarray:
+        """An edge's information matrix: fixed, from the front end's σ for a node edge and the
+        loop closure's for a ``loop`` edge, or Eq. 20's I/σλ² for both (docs/method.md §4.2)."""
+        if self.config.front_end.information == "paper":
             sigma = self.matcher.threshold.std
             return information_from_sigma(sigma if sigma > 0 else 1.0)
+        c = self.config.loop_closure if loop else self.config.front_end
         return np.diag([1 / c.sigma_translation**2, 1 / c.sigma_translation**2,
                         1 / c.sigma_rotation**2])
 

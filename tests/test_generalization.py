@@ -13,7 +13,7 @@ from swarmslam.runtime.degeneracy import Degeneracy
 from swarmslam.runtime.graph_optimizer import GaussNewton
 from swarmslam.runtime.loop_closure import visibility
 from swarmslam.runtime.pose import between, compose
-from swarmslam.runtime.pose_graph import LOOP
+from swarmslam.runtime.pose_graph import LOOP, ODOMETRY
 from swarmslam.runtime.scan import PointScan
 from swarmslam.runtime.scan_matcher import ScanMatcher
 from swarmslam.runtime.slam import GraphSlam
@@ -60,13 +60,25 @@ def test_a_generated_76_m_loop_closes_despite_biased_odometry(loop_run):
     assert abs(end[2]) < math.radians(2.0)
 
 
+def test_node_edges_and_loop_edges_carry_their_own_heading_information(loop_run):
+    _, slam = loop_run
+    g, c = slam.graph, slam.config
+    kind, heading = g.kind[: g.n_edges], g.info[: g.n_edges, 2, 2]
+    assert np.any(kind == LOOP) and np.any(kind == ODOMETRY)
+    assert c.front_end.sigma_rotation != c.loop_closure.sigma_rotation
+    assert np.allclose(heading[kind == LOOP], c.loop_closure.sigma_rotation**-2)
+    node = c.front_end.sigma_rotation**-2  # a node edge after a lost match: weakened
+    assert np.all(np.isclose(heading[kind == ODOMETRY], node)
+                  | np.isclose(heading[kind == ODOMETRY], node / c.front_end.weak_information_factor))
+
+
 def test_a_false_loop_constraint_does_not_bend_the_map(loop_run):
     _, slam = loop_run
     g = slam.graph
     before = g.poses[: g.n_nodes].copy()
     i, j = 3, g.n_nodes // 2  # far apart on the ring
     wrong = between(g.poses[j], g.poses[i]) + np.array([2.0, -1.5, 0.4])
-    g.add_edge(i, j, wrong, slam.front_end.information(), LOOP)
+    g.add_edge(i, j, wrong, slam.front_end.information(loop=True), LOOP)
     try:
         slam.back_end.optimizer.optimize()
         moved = np.hypot(*(g.poses[: g.n_nodes, :2] - before[:, :2]).T)
@@ -255,7 +267,7 @@ def test_a_loop_edge_in_a_corridor_keeps_only_the_floor_along_the_corridor():
     back = slam.back_end
     z = back.align_loop(0, 1)
     assert z is not None and abs(z[0] - 0.5) < 1e-6 and abs(z[1]) < 0.02
-    base = back.information()
+    base = back.information(loop=True)
     assert back.z_info[1, 1] > 0.99 * base[1, 1] and back.z_info[2, 2] > 0.99 * base[2, 2]
     at_truth = np.zeros(3)  # where the scans align, and the swarm's match lies
     d = Degeneracy(back.matcher.curvature(scan, back.reference, at_truth, (0.05, 0.01)), 0.12,
