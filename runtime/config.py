@@ -334,8 +334,8 @@ class FrontEndConfig(Section):
         ge=0, lt=1)
     degenerate_information: float = _setting(
         0.1, "the least share of its information an edge keeps along a degenerate direction "
-        "(there its value is odometry's prediction: 0.1 of 1/sigma_translation^2 is 0.079 m per "
-        "edge, half the odometry gate's allowance over a node's step)", gt=0, le=1)
+        "(there its value is odometry's prediction: 0.1 of 1/sigma_translation^2 is σ 0.079 m "
+        "per edge, 0.16 m with the former sigma_translation of 5 cm)", gt=0, le=1)
     curvature_step: tuple[float, float] = _setting(
         (0.05, 0.01), "finite-difference steps (m, rad) of the match's curvature", gt=0)
     spread_corrections: bool = _setting(

@@ -67,9 +67,9 @@ def test_node_edges_and_loop_edges_carry_their_own_heading_information(loop_run)
     assert np.any(kind == LOOP) and np.any(kind == ODOMETRY)
     assert c.front_end.sigma_rotation != c.loop_closure.sigma_rotation
     assert np.allclose(heading[kind == LOOP], c.loop_closure.sigma_rotation**-2)
-    node = c.front_end.sigma_rotation**-2  # a node edge after a lost match: weakened
-    assert np.all(np.isclose(heading[kind == ODOMETRY], node)
-                  | np.isclose(heading[kind == ODOMETRY], node / c.front_end.weak_information_factor))
+    node, at_node = c.front_end.sigma_rotation**-2, heading[kind == ODOMETRY]
+    weakened = node / c.front_end.weak_information_factor  # a node edge after a lost match
+    assert np.all(np.isclose(at_node, node) | np.isclose(at_node, weakened))
 
 
 def test_a_false_loop_constraint_does_not_bend_the_map(loop_run):
