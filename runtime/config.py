@@ -630,6 +630,10 @@ class RuntimeConfig(Section):
                                    ge=1, le=10_000_000)
     commit_memory: bool | None = _setting(
         None, "back every buffer with memory at start-up (none: when budgeted)")
+    malloc_mmap_threshold: int = _setting(
+        131_072, "bytes: with commit_memory, glibc's mmap threshold is pinned here and its "
+        "trim threshold at twice it, so freed memory goes back (0: the allocator's own)",
+        ge=0, le=32 * 2**20)
     warm_up_scans: int = _setting(120, "synthetic scans the warm-up runs", ge=10, le=100_000)
     autosave_seconds: float = _setting(60.0, "s between session autosaves of a live run "
                                        "(written beside the loop, atomically; 0: none)", ge=0)
@@ -886,7 +890,8 @@ EXPERT_FIELDS = frozenset({
     "localization.confirm_miss_floor",
     "runtime.min_evaluation_share", "runtime.front_end_cost_smoothing", "runtime.loop_queue",
     "runtime.max_deferred_ticks", "runtime.slice_cost_decay", "runtime.slice_cost_memory",
-    "runtime.latency_window", "runtime.commit_memory", "runtime.warm_up_scans"})
+    "runtime.latency_window", "runtime.commit_memory", "runtime.malloc_mmap_threshold",
+    "runtime.warm_up_scans"})
 LEVELS = ("basic", "standard", "all")
 
 

@@ -34,6 +34,7 @@ from dataclasses import replace
 import numpy as np
 
 from swarmslam.runtime import session
+from swarmslam.runtime.allocator import pin_malloc_thresholds
 from swarmslam.runtime.config import SensorConfig, SlamConfig, from_dict, override, to_dict
 from swarmslam.runtime.inbox import ScanInbox, real_array
 from swarmslam.runtime.localization import Localizer
@@ -161,6 +162,9 @@ class SlamRuntime:
         # A robot commits its capacities now; a simulator making an env per episode need not.
         commit = rc.commit_memory if rc.commit_memory is not None else rc.schedule == "budgeted"
         self.reserved_bytes = commit_memory(self) if commit else 0
+        # and keeps what it frees from staying resident (runtime/allocator.py)
+        self.allocator_pinned = bool(commit and rc.malloc_mmap_threshold > 0
+                                     and pin_malloc_thresholds(rc.malloc_mmap_threshold))
 
     # ------------------------------------------------------------------ Alg. 4, one tick
     def tick(self, deadline: float | None = None) -> StepResult | None:

@@ -13,6 +13,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from swarmslam.runtime import allocator
 from swarmslam.runtime.config import (
     MatcherConfig,
     RuntimeConfig,
@@ -449,6 +450,46 @@ def test_graph_growth_allocates_nothing_that_stays():
     # qdldl solver's scipy round trips kept more; now it is the C-call residue above (37–57 B
     # per node over four runs).
     assert result["growth"] < 150 * result["added"], result
+
+
+KEPT_PROBE = textwrap.dedent(
+    """
+    import json, sys
+    import numpy as np
+    sys.path.insert(0, {tests!r})
+    from test_runtime import QUICK, with_runtime
+    from swarmslam.runtime.fixed_rate import SlamRuntime
+
+    def rss_mib():
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * 4096 / 2**20
+
+    def kept_after_free():
+        big = np.ones(2**21)  # 16 MiB freed: glibc raises its thresholds past 1 MiB
+        del big
+        before = rss_mib()
+        blocks = [np.ones(2**17) for _ in range(20)]  # 20 blocks of 1 MiB, then freed
+        del blocks
+        return rss_mib() - before
+
+    plain = SlamRuntime(with_runtime(QUICK, schedule="lockstep"))
+    unpinned = kept_after_free()
+    robot = SlamRuntime(with_runtime(QUICK, schedule="budgeted"))
+    print(json.dumps({{"pinned": [plain.allocator_pinned, robot.allocator_pinned],
+                      "kept_unpinned": unpinned, "kept_pinned": kept_after_free()}}))
+    """
+)
+
+
+@pytest.mark.skipif(allocator.glibc() is None, reason="mallopt's thresholds are glibc's")
+def test_a_robots_runtime_gives_back_what_it_frees_after_a_large_block():
+    """A runtime that commits its memory pins glibc's thresholds: blocks freed after one large
+    block was freed go back to the system instead of staying resident (docs/runtime.md §4).
+    The same process shows what happens unpinned first; a simulator's runtime pins nothing."""
+    result = probe(KEPT_PROBE)
+    assert result["pinned"] == [False, True]
+    assert result["kept_unpinned"] > 15, result  # the phenomenon, on this C library
+    assert result["kept_pinned"] < 2, result
 
 
 def test_run_ticks_at_its_rate_and_stops_on_request():

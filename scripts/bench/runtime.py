@@ -99,6 +99,7 @@ def max_speed(scans, relations, config, echo, seed: int = 0) -> dict:
         "over_budget_ticks": int(np.sum(latency > runtime_config.tick_budget)),
         "rss_mib_peak": rss_peak / 1024,
         "rss_mib_committed_at_start": runtime.reserved_bytes / 2**20,
+        "allocator_pinned": runtime.allocator_pinned,
         "warm_up_seconds": warm,
         "rss_mib_growth_after_warm_up": (rss_end - rss_after_warm_up) / 1024,
         "runtime": report,
