@@ -629,7 +629,8 @@ class RuntimeConfig(Section):
     latency_window: int = _setting(4096, "recent tick latencies kept for the median / p99",
                                    ge=1, le=10_000_000)
     commit_memory: bool | None = _setting(
-        None, "back every buffer with memory at start-up (none: when budgeted)")
+        None, "back every buffer with memory at start-up, and keep what is alive when the "
+        "fixed-rate loop starts out of the garbage collector's passes (none: when budgeted)")
     malloc_mmap_threshold: int = _setting(
         131_072, "bytes: with commit_memory, glibc's mmap threshold is pinned here and its "
         "trim threshold at twice it, so freed memory goes back (0: the allocator's own)",

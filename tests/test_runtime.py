@@ -1,6 +1,7 @@
 """The fixed-rate runtime: lockstep = GraphSlam.step, sliced back end under deadline pressure,
 capacities, sessions (save → kill → resume, corrupt files), and no memory growth per tick."""
 
+import gc
 import json
 import os
 import subprocess
@@ -512,6 +513,29 @@ def test_run_ticks_at_its_rate_and_stops_on_request():
     assert runtime.stats.scans == 5
     gaps = np.diff(seen)
     assert np.median(gaps) == pytest.approx(0.02, abs=0.008)
+
+
+def test_a_robots_loop_keeps_what_lived_before_it_out_of_the_collector_until_it_ends():
+    """While a committing runtime's loop runs, the objects alive when it began are frozen
+    (no full collection walks them); when it ends they are handed back. A simulator's
+    runtime, which commits nothing, leaves the collector alone."""
+    angles, records = recorded_drive(3)
+    gc.collect()
+    assert gc.get_freeze_count() == 0
+    for schedule, frozen in (("budgeted", True), ("lockstep", False)):
+        runtime = SlamRuntime(with_runtime(QUICK, rate_hz=50, schedule=schedule))
+        stop, during = threading.Event(), []
+
+        def on_tick(rt, result):
+            during.append(gc.get_freeze_count())
+            if len(during) == 3:
+                stop.set()
+
+        runtime.inbox.put_ranges(angles=angles, ranges=records[0][2], stamp=0.0,
+                                 odometry=records[0][1])
+        runtime.run(stop, on_tick=on_tick)
+        assert (min(during) > 1000) == frozen, (schedule, during)
+        assert gc.get_freeze_count() == 0
 
 
 def test_the_hand_off_cannot_swap_angles_and_ranges():
