@@ -27,6 +27,7 @@ and says so in ``status``. Sizing: docs/runtime.md §4.
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import threading
 import time
@@ -257,15 +258,21 @@ class SlamRuntime:
         if autosave is not None and not self.localizing:
             saver = session.Autosave(autosave, self.config.runtime.autosave_seconds, self.clock)
         self.autosave = saver
-        # A robot's loop leaves what is alive when it starts out of the collector's full
-        # passes, which otherwise walk every module and dispatcher (one stalled a tick 62–68 ms
-        # on Intel); they are handed back when it ends (docs/runtime.md §4).
+        with self.collector_held():
+            self._loop(stop, period, max_ticks, on_tick, saver)
+
+    @contextlib.contextmanager
+    def collector_held(self):
+        """While a committing runtime ticks (:meth:`run`), what was alive before is kept out of
+        the garbage collector's full passes, which otherwise walk every module and dispatcher
+        (one stalled a tick 62–68 ms on Intel); it is handed back at the end (docs/runtime.md
+        §4). A runtime that commits nothing, or a hold already in place, leaves it alone."""
         frozen = self.committed and gc.get_freeze_count() == 0
         if frozen:
             gc.collect()
             gc.freeze()
         try:
-            self._loop(stop, period, max_ticks, on_tick, saver)
+            yield
         finally:
             if frozen:
                 gc.unfreeze()
