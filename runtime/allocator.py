@@ -16,7 +16,6 @@ Only glibc has ``mallopt`` with these meanings; elsewhere nothing is done and th
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 
 M_TRIM_THRESHOLD = -1  # glibc's malloc.h
 M_MMAP_THRESHOLD = -3
