@@ -459,11 +459,11 @@ KEPT_PROBE = textwrap.dedent(
     import numpy as np
     sys.path.insert(0, {tests!r})
     from test_runtime import QUICK, with_runtime
+    from swarmslam.bench.runtime import rss_kib
     from swarmslam.runtime.fixed_rate import SlamRuntime
 
     def rss_mib():
-        with open("/proc/self/statm") as f:
-            return int(f.read().split()[1]) * 4096 / 2**20
+        return rss_kib()[0] / 1024
 
     def kept_after_free():
         big = np.ones(2**21)  # 16 MiB freed: glibc raises its thresholds past 1 MiB
