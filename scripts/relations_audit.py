@@ -44,7 +44,8 @@ from swarmslam.runtime.writers import write_json_atomic
 from swarmslam.carmen import read_carmen
 from swarmslam.icp import icp
 from swarmslam.metrics import LOCAL_GAP, SHORT_GAP, kummerle, match_relations, relation_errors
-from swarmslam.plots import relations_audit_figure, require_matplotlib
+from swarmslam.plots import (gross_failures_figure, relations_audit_figure,
+                             require_matplotlib)
 from swarmslam.progress import Progress
 from swarmslam.relations import Relations, read_relations
 from swarmslam.relations_clock import AGREEMENT_DEG, reference_clock
@@ -151,13 +152,14 @@ def log_scans(log_path) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
 
 def audit_log(log_path, relations: Relations, min_gain: float = MIN_GAIN, label: str = "audit"):
     """``relations`` checked against ``log_path``'s own scans (:func:`audit_scans`, odometry's
-    motion among ICP's starts), with progress: ``(audit, scan stamps, odometry at each)``."""
+    motion among ICP's starts), with progress: ``(audit, scans, scan stamps, odometry at
+    each)``."""
     scans, scan_stamps, odometry = log_scans(log_path)
     progress = Progress(len(relations), label)
     audit = audit_scans(scans, scan_stamps, relations, min_gain=min_gain, progress=progress,
                         odometry=odometry)
     progress.close()
-    return audit, scan_stamps, odometry
+    return audit, scans, scan_stamps, odometry
 
 
 def scored_apart(stamps, poses, relations: Relations, audit: Audit) -> dict:
@@ -187,8 +189,8 @@ def short_tail_apart(stamps, poses, relations: Relations, audit: Audit,
     ``eR_short_confirmed_p99_deg``, ``relations_short_confirmed``); and its short relations off
     by more than ``gross_deg``°: how many (``eR_short_over_10deg``), how many of them the scans
     do not contradict (``eR_short_over_10deg_confirmed``: the trajectory's own gross failures)
-    and those listed (``short_over_10deg_confirmed``: t1, t2, eR_deg). Empty without short
-    relations."""
+    and those listed (``short_over_10deg_confirmed``: t1, t2, eR_deg, the relation's
+    ``delta``). Empty without short relations."""
     ok, _, e_r = relation_errors(stamps, poses, relations)
     used = np.flatnonzero(ok)
     short = np.abs(relations.t2[used] - relations.t1[used]) < short_gap
@@ -200,13 +202,60 @@ def short_tail_apart(stamps, poses, relations: Relations, audit: Audit,
     out = {f"eR_short_{key}": int(gross.sum()),
            f"eR_short_{key}_confirmed": int((gross & confirmed).sum()),
            f"short_{key}_confirmed": [
-               {"t1": float(relations.t1[r]), "t2": float(relations.t2[r]), "eR_deg": float(e)}
+               {"t1": float(relations.t1[r]), "t2": float(relations.t2[r]), "eR_deg": float(e),
+                "delta": [float(v) for v in relations.delta[r]]}
                for r, e in zip(used[gross & confirmed], e_r[gross & confirmed])],
            "relations_short_confirmed": int(confirmed.sum())}
     if np.any(confirmed):
         out["eR_short_confirmed_deg"] = float(np.mean(e_r[confirmed]))
         out["eR_short_confirmed_p99_deg"] = float(np.percentile(e_r[confirmed], 99))
     return out
+
+
+def placed_both_ways(scans, scan_stamps, stamps, poses, listed: list[dict],
+                     inlier_distance: float = INLIER_DISTANCE) -> list[dict]:
+    """Each ``listed`` relation (``t1``, ``t2``, its pose ``delta``) with its two scans placed
+    on each other twice: by the relation and by the trajectory (``stamps``, ``poses``). Adds
+    to a copy of each the share of the second scan's points within ``inlier_distance`` of the
+    first's either way (``fit_relation``, ``fit_trajectory``) and, for a figure, the scans and
+    both placements (``first``, ``second``, ``by_relation``, ``by_trajectory``). A gross
+    failure the scans do not contradict by ICP's gain may still fit them better placed by the
+    trajectory: two scans that share little (a fast turn, a hall of clutter) leave ICP short
+    of the gain, and this shows which of the two the surfaces they share side with."""
+    if not listed:
+        return []
+    t1 = np.array([r["t1"] for r in listed])
+    t2 = np.array([r["t2"] for r in listed])
+    ends = Relations(t1, t2, np.array([r["delta"] for r in listed]))
+    i, j, found = match_relations(scan_stamps, ends)
+    a, b, placed = match_relations(stamps, ends)
+    poses = np.asarray(poses, np.float64).reshape(-1, 3)
+    out = []
+    for k, r in enumerate(listed):
+        if not (found[k] and placed[k]):
+            continue
+        first, second = scans[i[k]], scans[j[k]]
+        tree = cKDTree(first)
+        by_trajectory = between(poses[b[k]], poses[a[k]])  # δ = x_2 ⊖ x_1
+        by_relation = np.asarray(r["delta"], np.float64)
+        out.append({**r, "fit_relation": scan_fit(tree, second, by_relation, inlier_distance),
+                    "fit_trajectory": scan_fit(tree, second, by_trajectory, inlier_distance),
+                    "first": first, "second": second, "by_relation": by_relation,
+                    "by_trajectory": by_trajectory})
+    return out
+
+
+def fits_of_gross_failures(short: dict, scans, scan_stamps, stamps, poses) -> list[dict]:
+    """:func:`placed_both_ways` for the gross short failures the scans do not contradict, as
+    :func:`short_tail_apart` lists them in ``short``; each listed entry gains its two fits."""
+    listed = short.get(f"short_over_{GROSS_DEG:g}deg_confirmed", [])
+    placed = placed_both_ways(scans, scan_stamps, stamps, poses, listed)
+    fits = {(g["t1"], g["t2"]): g for g in placed}
+    for r in listed:
+        if (r["t1"], r["t2"]) in fits:
+            g = fits[(r["t1"], r["t2"])]
+            r.update(fit_relation=g["fit_relation"], fit_trajectory=g["fit_trajectory"])
+    return placed
 
 
 WORST_SHOWN = 10  # the worst relations printed (the JSON keeps WORST_KEPT)
@@ -253,7 +302,7 @@ def audit_command(log_path, relations_path, trajectory_path=None, json_path=None
         require_matplotlib()
     relations = read_relations(relations_path)
     stamps, poses = read_tum(trajectory_path) if trajectory_path else (None, None)
-    audit, scan_stamps, odometry = audit_log(log_path, relations, min_gain)
+    audit, scans, scan_stamps, odometry = audit_log(log_path, relations, min_gain)
     result = {"log": str(log_path), "relations_file": str(relations_path),
               **audit.summary(relations)}
     print(f"{result['checked']} of {result['relations']} relations checked against their "
@@ -264,6 +313,7 @@ def audit_command(log_path, relations_path, trajectory_path=None, json_path=None
     if "correction_m_median" in result:
         print(f"  the scans move a contradicted relation by {result['correction_m_median']:.3f} m"
               f" / {result['correction_deg_median']:.2f}° (median)")
+    gross = []  # the trajectory's gross short failures, placed both ways
     if trajectory_path:
         result["trajectory"] = str(trajectory_path)
         result["scores"] = scored_apart(stamps, poses, relations, audit)
@@ -281,6 +331,11 @@ def audit_command(log_path, relations_path, trajectory_path=None, json_path=None
                   f"{short['relations_short_confirmed']} the scans do not contradict; "
                   f"{short[f'eR_short_{key}']} above {GROSS_DEG:g}°, "
                   f"{short[f'eR_short_{key}_confirmed']} of them not contradicted")
+        gross = fits_of_gross_failures(short, scans, scan_stamps, stamps, poses)
+        for g in gross:
+            print(f"    {g['t1']:.3f} ({g['t2'] - g['t1']:.2f} s, eR {g['eR_deg']:.2f}°): the "
+                  f"second scan fits {g['fit_relation']:.0%} of its points on the first placed "
+                  f"by the relation, {g['fit_trajectory']:.0%} placed by the trajectory")
     if trajectory_path:
         result["worst"] = worst_relations(stamps, poses, relations, scan_stamps, odometry, audit)
         print(f"  the {WORST_SHOWN} worst relations of the trajectory (heading):")
@@ -314,6 +369,9 @@ def audit_command(log_path, relations_path, trajectory_path=None, json_path=None
                                       - scan_stamps.min(), audit.fit[c], audit.fit_aligned[c],
                                       audit.contradicted[c], None if e_r is None else e_r[c])
         print(f"wrote {path}")
+        if gross:
+            path = gross_failures_figure(plots, Path(relations_path).name, gross)
+            print(f"wrote {path}")
     if json_path:
         result["contradicted_relations"] = [
             {"t1": float(relations.t1[k]), "t2": float(relations.t2[k]),

@@ -12,6 +12,7 @@ from swarmslam.runtime.pose import between, compose
 from swarmslam.runtime.warm_up import loop_path, room_world, scan_at
 from swarmslam.carmen import flaser_angles
 from swarmslam.cli import main
+from swarmslam.plots import gross_failures_figure
 from swarmslam.relations import Relations, relations_text
 from swarmslam.tum import write_tum
 
@@ -160,6 +161,23 @@ def test_short_gross_failures_are_told_from_relations_the_scans_contradict(tmp_p
     assert tail["relations_short_confirmed"] == (~wrong).sum()
     assert tail["eR_short_confirmed_deg"] == pytest.approx(
         np.degrees(0.3) * touches.sum() / (~wrong).sum(), rel=0.01)
+
+    # Each gross failure listed with its scans placed both ways: here the relation is the
+    # truth and the trajectory slipped, so the scans fit the relation's placement ...
+    placed = relations_audit.fits_of_gross_failures(tail, scans, scan_stamps, stamps, trajectory)
+    assert len(placed) == touches.sum()
+    for r in tail["short_over_10deg_confirmed"]:
+        assert r["fit_relation"] > 0.8 and r["fit_trajectory"] < r["fit_relation"] - 0.3
+    # ... and the other way round when the trajectory is the truth and the relation slipped
+    swapped = {"short_over_10deg_confirmed": [
+        {**r, "delta": list(compose(np.asarray(r["delta"]), np.array([0.0, 0.0, 0.3])))}
+        for r in tail["short_over_10deg_confirmed"]]}
+    relations_audit.fits_of_gross_failures(swapped, scans, scan_stamps, stamps, poses)
+    for r in swapped["short_over_10deg_confirmed"]:
+        assert r["fit_trajectory"] > 0.8 and r["fit_relation"] < r["fit_trajectory"] - 0.3
+    figure = gross_failures_figure(tmp_path / "plots", "room", placed)
+    assert figure.name == "audit-room-gross.png"
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
     # relations 10 s apart or more are not short: nothing to report
     later = Relations(stamps[i], stamps[j] + relations_audit.SHORT_GAP, delta)

@@ -18,7 +18,7 @@ from swarmslam.datasets import require
 from swarmslam.metrics import LOCAL_GAP, relation_errors
 from swarmslam.plots import require_matplotlib, slam_errors_over_time, slam_summary
 from swarmslam.relations import read_relations
-from swarmslam.relations_audit import audit_log, short_tail_apart
+from swarmslam.relations_audit import audit_log, fits_of_gross_failures, short_tail_apart
 from swarmslam.replay import replay_run
 from swarmslam.bench.record import save_results
 
@@ -68,7 +68,7 @@ def bench_slam(data_dir: Path, optimizers=("abc", "pso", "fa"), logs=tuple(LOGS)
         log_path = require(Path(data_dir) / "radish" / log)
         rel_path = require(Path(data_dir) / "radish" / rel)
         relations = read_relations(rel_path)
-        audit, _, _ = audit_log(log_path, relations, label=f"audit {name}")
+        audit, scans, scan_stamps, _ = audit_log(log_path, relations, label=f"audit {name}")
         results["audits"][name] = audit.summary(relations)
         rows = []
         for optimizer in optimizers:
@@ -81,7 +81,7 @@ def bench_slam(data_dir: Path, optimizers=("abc", "pso", "fa"), logs=tuple(LOGS)
                                             limit, seed, label=label, config=config)
                     if plots:
                         plot_run(plots, label, runtime, relations)
-                    m.update(audited_tail(runtime, relations, audit))
+                    m.update(audited_tail(runtime, relations, audit, scans, scan_stamps))
                     m.update(dataset=name, seed=seed)
                     results["runs"].append(m)
                     runs.append(m)
@@ -97,15 +97,18 @@ def bench_slam(data_dir: Path, optimizers=("abc", "pso", "fa"), logs=tuple(LOGS)
     return results
 
 
-def audited_tail(runtime, relations, audit) -> dict:
+def audited_tail(runtime, relations, audit, scans, scan_stamps) -> dict:
     """The run's short relations scored apart over those the scans do not contradict
-    (swarmslam.relations_audit.short_tail_apart); empty when no relation lies within the run
-    (a ``--limit`` run)."""
+    (swarmslam.relations_audit.short_tail_apart), each gross failure listed with the fit of
+    its scans placed by the relation and by the run (``fits_of_gross_failures``); empty when
+    no relation lies within the run (a ``--limit`` run)."""
     stamps, poses = runtime.trajectory()
     try:
-        return short_tail_apart(stamps, poses, relations, audit)
+        short = short_tail_apart(stamps, poses, relations, audit)
     except ValueError:  # no relation has both ends in the trajectory
         return {}
+    fits_of_gross_failures(short, scans, scan_stamps, stamps, poses)
+    return short
 
 
 def plot_run(out_dir, label, runtime, relations) -> None:
