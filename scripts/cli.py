@@ -692,8 +692,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="share of the second scan's points ICP (from the relation, or from "
                          "odometry's motion for a relation under 10 s) must fit in addition "
                          "for the scans to contradict it")
-    au.add_argument("--plots", metavar="DIR", help="write the audit's figure (PNG) here "
-                                                   "(extra 'plots')")
+    au.add_argument("--plots", metavar="DIR", help="write the audit's figures (PNG) here: "
+                    "fit over time and, with --trajectory, its gross short failures placed "
+                    "both ways (extra 'plots')")
     au.set_defaults(func=_relations_audit)
 
     sw = sub.add_parser("sweep", help="replays over logs × optimizers × seeds × configuration "
