@@ -101,9 +101,10 @@ GROSS_SHOWN = 6  # gross failures drawn at most, the first listed
 
 def gross_failures_figure(out_dir, label: str, gross: list[dict]) -> Path:
     """A trajectory's gross short failures the audit could not call contradicted
-    (swarmslam.relations_audit.placed_both_ways): per relation, its second scan (red) on its
-    first (blue) placed by the relation (left) and by the trajectory (right), each titled with
-    the share of points that fits — which of the two the surfaces the scans share side with."""
+    (swarmslam.relations_audit.fits_of_gross_failures): per relation, its second scan (red) on
+    its first (blue) placed by the relation (left) and by the trajectory (right), each titled
+    with the share of points that fits — which of the two the surfaces the scans share side
+    with."""
     plt = _pyplot()
     shown = gross[:GROSS_SHOWN]
     fig, axes = plt.subplots(len(shown), 2, figsize=(10, 4.6 * len(shown)), squeeze=False)

@@ -212,21 +212,22 @@ def short_tail_apart(stamps, poses, relations: Relations, audit: Audit,
     return out
 
 
-def placed_both_ways(scans, scan_stamps, stamps, poses, listed: list[dict],
-                     inlier_distance: float = INLIER_DISTANCE) -> list[dict]:
-    """Each ``listed`` relation (``t1``, ``t2``, its pose ``delta``) with its two scans placed
-    on each other twice: by the relation and by the trajectory (``stamps``, ``poses``). Adds
-    to a copy of each the share of the second scan's points within ``inlier_distance`` of the
-    first's either way (``fit_relation``, ``fit_trajectory``) and, for a figure, the scans and
-    both placements (``first``, ``second``, ``by_relation``, ``by_trajectory``). A gross
-    failure the scans do not contradict by ICP's gain may still fit them better placed by the
-    trajectory: two scans that share little (a fast turn, a hall of clutter) leave ICP short
-    of the gain, and this shows which of the two the surfaces they share side with."""
+def fits_of_gross_failures(short: dict, scans, scan_stamps, stamps, poses,
+                           inlier_distance: float = INLIER_DISTANCE) -> list[dict]:
+    """The gross short failures the scans do not contradict, as :func:`short_tail_apart` lists
+    them in ``short`` (each with its relation's pose ``delta``), their two scans placed on each
+    other twice: by the relation and by the trajectory (``stamps``, ``poses``). Each listed
+    entry gains the share of the second scan's points within ``inlier_distance`` of the first's
+    either way (``fit_relation``, ``fit_trajectory``); returned, for a figure, each entry with
+    the scans and both placements (``first``, ``second``, ``by_relation``, ``by_trajectory``).
+    A gross failure the scans do not contradict by ICP's gain may still fit them better placed
+    by the trajectory: two scans that share little (a fast turn, a hall of clutter) leave ICP
+    short of the gain, and this shows which of the two the surfaces they share side with."""
+    listed = short.get(f"short_over_{GROSS_DEG:g}deg_confirmed", [])
     if not listed:
         return []
-    t1 = np.array([r["t1"] for r in listed])
-    t2 = np.array([r["t2"] for r in listed])
-    ends = Relations(t1, t2, np.array([r["delta"] for r in listed]))
+    ends = Relations(np.array([r["t1"] for r in listed]), np.array([r["t2"] for r in listed]),
+                     np.array([r["delta"] for r in listed]))
     i, j, found = match_relations(scan_stamps, ends)
     a, b, placed = match_relations(stamps, ends)
     poses = np.asarray(poses, np.float64).reshape(-1, 3)
@@ -237,25 +238,12 @@ def placed_both_ways(scans, scan_stamps, stamps, poses, listed: list[dict],
         first, second = scans[i[k]], scans[j[k]]
         tree = cKDTree(first)
         by_trajectory = between(poses[b[k]], poses[a[k]])  # δ = x_2 ⊖ x_1
-        by_relation = np.asarray(r["delta"], np.float64)
-        out.append({**r, "fit_relation": scan_fit(tree, second, by_relation, inlier_distance),
-                    "fit_trajectory": scan_fit(tree, second, by_trajectory, inlier_distance),
-                    "first": first, "second": second, "by_relation": by_relation,
+        by_relation = ends.delta[k]
+        r.update(fit_relation=scan_fit(tree, second, by_relation, inlier_distance),
+                 fit_trajectory=scan_fit(tree, second, by_trajectory, inlier_distance))
+        out.append({**r, "first": first, "second": second, "by_relation": by_relation,
                     "by_trajectory": by_trajectory})
     return out
-
-
-def fits_of_gross_failures(short: dict, scans, scan_stamps, stamps, poses) -> list[dict]:
-    """:func:`placed_both_ways` for the gross short failures the scans do not contradict, as
-    :func:`short_tail_apart` lists them in ``short``; each listed entry gains its two fits."""
-    listed = short.get(f"short_over_{GROSS_DEG:g}deg_confirmed", [])
-    placed = placed_both_ways(scans, scan_stamps, stamps, poses, listed)
-    fits = {(g["t1"], g["t2"]): g for g in placed}
-    for r in listed:
-        if (r["t1"], r["t2"]) in fits:
-            g = fits[(r["t1"], r["t2"])]
-            r.update(fit_relation=g["fit_relation"], fit_trajectory=g["fit_trajectory"])
-    return placed
 
 
 WORST_SHOWN = 10  # the worst relations printed (the JSON keeps WORST_KEPT)
