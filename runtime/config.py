@@ -318,6 +318,16 @@ class FrontEndConfig(Section):
         "the points this near a surface (plus track_inlier_slope per m of range): narrower than "
         "track_inlier_distance, which tells a lost match, it tells two poses a few degrees "
         "apart", gt=0)
+    previous_scan_gain: float = _setting(
+        0.1, "a match is lost when odometry's prediction (a new reading) fits the previous scan "
+        "by more than this share of the points better than the match does: the keyframe's "
+        "submap may hold a wall twice where the previous scan holds it once (docs/method.md "
+        "§6.1); 1: never", ge=0, le=1)
+    previous_scan_fit: float = _setting(
+        0.75, "previous_scan_gain applies only where odometry's prediction fits at least this "
+        "share of the points on the previous scan's surfaces (within track_inlier_distance "
+        "plus the slope): the previous scan vouches for the prediction where the two overlap",
+        ge=0, le=1)
     stale_turn_window: float = _setting(
         0.6, "rad: after odometry's reading came again unchanged (stale), a lost match is "
         "sought again this far either side in heading (a robot may have turned in place "
@@ -859,6 +869,7 @@ EXPERT_FIELDS = frozenset({
     "front_end.stale_turn_window", "front_end.degenerate_information",
     "front_end.odometry_gate_share", "front_end.odometry_gate_fit",
     "front_end.odometry_gate_explained", "front_end.odometry_gate_distance",
+    "front_end.previous_scan_gain", "front_end.previous_scan_fit",
     "matcher.surface_bend", "matcher.surface_gap_ratio", "matcher.coarse_radius",
     "matcher.polish_step", "matcher.polish_halvings", "matcher.polish_evaluations",
     "matcher.grid_cells", "matcher.occupied_radius", "matcher.robot_diameter",

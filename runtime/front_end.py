@@ -122,6 +122,13 @@ class FrontEnd:
         self.rescued_matches = 0  # lost matches found again around the scans' own motion
         self.degenerate_matches = 0  # matches held to the prediction along a direction
         self.degeneracy = None  # the last match's (swarmslam.runtime.degeneracy), when measured
+        # The scan tracked last, and its fine field once a match was checked against it: it
+        # holds each wall once where the keyframe's submap may hold one twice (docs/method.md
+        # §6.1, "The previous scan").
+        self._previous = PointScan(points)
+        self._previous_field = self.matcher.new_reference()
+        self._previous_built = False
+        self.disowned_matches = 0  # matches the previous scan called lost
         self.status = "ok"
         self.evaluations = 0  # by the last match (what a viewer plots)
 
@@ -151,6 +158,7 @@ class FrontEnd:
             self.odometry_rel[:] = pose
         node_added = self.insert_node(scan, stamp)  # Alg. 6
         self._record(stamp)
+        self._remember(scan)
         return Tracking(self.pose(), node_added, self.keyframe, match.error)
 
     def pose(self) -> np.ndarray:
@@ -208,6 +216,7 @@ class FrontEnd:
         self._prediction(odometry)  # the new run's odometry starts here
         self.rebuild_reference()
         self._record(stamp)
+        self._remember(scan)
         return True
 
     def rebuild_reference(self, placed: bool = False) -> None:
@@ -269,6 +278,7 @@ class FrontEnd:
             self.odometry_rel[:] = 0.0
             self.have_odometry = True
         self._record(stamp)
+        self._remember(scan)
 
     def _submap_of(self, node, placed: bool = False):
         """The newest node's scan, preceded by up to submap_nodes − 1 earlier node scans moved
@@ -299,20 +309,49 @@ class FrontEnd:
 
     def _lost(self, scan, pose, guess, step, have_odometry: bool, inside: bool) -> bool:
         """The match has lost track: it is pressed against its search box's edge (the optimum
-        lies beyond), too few of its points land on the keyframe's surfaces, or it contradicts
-        odometry (the gate) without :meth:`_overrules` odometry (docs/method.md §6.1)."""
+        lies beyond), too few of its points land on the keyframe's surfaces, it contradicts
+        odometry (the gate) without :meth:`_overrules` odometry, or the previous scan
+        :meth:`_disowns` it (docs/method.md §6.1)."""
         c = self.config.front_end
         if not inside:
             return True
         fit = self._inliers(scan, pose)
         if fit < c.min_track_inliers:
             return True
-        if not (have_odometry and contradicts_odometry(pose, guess, step, c)):
-            return False
-        if self._overrules(scan, pose, fit, guess, step, inside):
+        if have_odometry and contradicts_odometry(pose, guess, step, c):
+            if not self._overrules(scan, pose, fit, guess, step, inside):
+                return True
             self.overruled_odometry += 1
-            return False
-        return True
+        return have_odometry and self._disowns(scan, pose, guess)
+
+    def _disowns(self, scan, pose, guess) -> bool:
+        """The previous scan fits odometry's prediction ``guess`` (a new reading) clearly
+        better than the match ``pose``: more than ``previous_scan_gain`` of the points better,
+        the prediction fitting at least ``previous_scan_fit`` of them. A keyframe's submap
+        whose node scans were placed a few degrees apart holds a wall twice, and a scan
+        tracked against it fits either copy; the previous scan, moments old, holds the wall
+        once (fr-clinic's halls: ±4° a scan, alternating; docs/method.md §6.1)."""
+        c = self.config.front_end
+        if self.stale or c.previous_scan_gain >= 1 or self._previous.count == 0:
+            return False  # a stale reading predicts nothing to vouch for
+        if not self._previous_built:
+            self.matcher.build_field(self._previous, self._previous_field)
+            self._previous_built = True
+        # (the previous scan's pose in the keyframe's frame is self.rel until this scan's is set)
+        predicted, fit = (self.matcher.inlier_fraction(
+            scan, self._previous_field, between(p, self.rel), c.track_inlier_distance,
+            c.track_inlier_slope) for p in (guess, pose))
+        if predicted >= c.previous_scan_fit and predicted - fit > c.previous_scan_gain:
+            self.disowned_matches += 1
+            return True
+        return False
+
+    def _remember(self, scan: PointScan) -> None:
+        """Keep ``scan`` as the previous scan; its field is built when first needed."""
+        n = scan.count
+        self._previous.buffer[:n] = scan.buffer[:n]
+        self._previous.count = n
+        self._previous_built = False
 
     def _overrules(self, scan, pose, fit: float, guess, step, inside: bool) -> bool:
         """A match (``fit``: its share of points on the keyframe's surfaces) is trusted over
@@ -416,7 +455,8 @@ class FrontEnd:
                 "degenerate_matches": self.degenerate_matches, "status": self.status,
                 "submap_nodes": self._submap_nodes[: self._n_submap].copy(),
                 "submap_poses": self._submap_poses[: self._n_submap].copy(),
-                "odometry_rel": self.odometry_rel.copy()}
+                "odometry_rel": self.odometry_rel.copy(),
+                "previous_points": self._previous.points.copy()}
 
     def restore(self, state: dict) -> None:
         """The state :meth:`state` gave, over a front end of the same configuration built on
@@ -450,6 +490,12 @@ class FrontEnd:
                 or not np.all(np.isfinite(poses))):
             raise ValueError("the keyframe's submap is not one this front end builds "
                              "(another submap_nodes?)")
+        previous = state.get("previous_points", np.zeros((0, 2)))  # (none: saved before it)
+        if (previous.ndim != 2 or previous.shape[1] != 2
+                or len(previous) > self._previous.capacity or not np.all(np.isfinite(previous))):
+            raise ValueError("the previous scan's points do not fit this front end")
+        self._previous.buffer[: len(previous)] = previous
+        self._previous.count, self._previous_built = len(previous), False
         self._n_submap = len(members)
         self._submap_nodes[: self._n_submap] = members
         self._submap_poses[: self._n_submap] = poses

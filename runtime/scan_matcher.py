@@ -340,18 +340,7 @@ class ScanMatcher:
         ref = self._default_reference if out is None else out
         c = self.config
         inv_c2 = self.settings[S_INV_C2] if c.kernel == "cauchy" else 0.0
-        build_distance_field(
-            scan.buffer,
-            scan.count,
-            c.resolution,
-            c.field_radius,
-            c.max_gap,
-            inv_c2,
-            ref.field,
-            ref.meta,
-            c.surface_bend,
-            c.surface_gap_ratio,
-        )
+        self.build_field(scan, ref)
         if c.coarse_resolution > 0:
             build_distance_field(
                 scan.buffer,
@@ -371,6 +360,15 @@ class ScanMatcher:
             )
         ref.ready = True
         return ref
+
+    def build_field(self, scan: PointScan, out: ReferenceMaps) -> None:
+        """Render ``scan``'s fine distance field (Eq. 14) alone into ``out``: what
+        :meth:`inlier_fraction` reads, not yet a reference to align with (``out.ready`` is
+        left as it was)."""
+        c = self.config
+        inv_c2 = self.settings[S_INV_C2] if c.kernel == "cauchy" else 0.0
+        build_distance_field(scan.buffer, scan.count, c.resolution, c.field_radius, c.max_gap,
+                             inv_c2, out.field, out.meta, c.surface_bend, c.surface_gap_ratio)
 
     def set_search_box(self, guess=None, window=None) -> None:
         """Centre the search box on ``guess`` (e.g. odometry), else on no motion; ``window``:

@@ -306,6 +306,22 @@ def test_a_session_whose_tracking_submap_is_not_its_own_is_refused(saved, tmp_pa
         SlamRuntime.resume(bad)
 
 
+def test_a_session_keeps_the_scan_the_next_match_is_checked_against(saved, tmp_path):
+    """The front end checks each match against the scan tracked before it (docs/method.md
+    §6.1): a resumed session has that scan, and refuses one that is not a scan's points."""
+    runtime, path = saved
+    kept = runtime.state()["slam"]["front_end"]["previous_points"]
+    assert kept.shape[0] > 100 and kept.shape[1] == 2
+    resumed = SlamRuntime.resume(path).state()["slam"]["front_end"]["previous_points"]
+    assert np.array_equal(resumed, kept)
+    state = runtime.state()
+    state["slam"]["front_end"]["previous_points"][3, 1] = np.nan
+    bad = tmp_path / "nan.session"
+    write_session(bad, state)
+    with pytest.raises(SessionError, match="previous scan"):
+        SlamRuntime.resume(bad)
+
+
 def test_each_save_keeps_the_previous_good_session(saved, tmp_path):
     runtime, _ = saved
     path = tmp_path / "s.session"
