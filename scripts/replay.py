@@ -225,6 +225,7 @@ def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, s
         "loops_rejected_consistency": slam.back_end.loops.rejected_consistency,
         "matches_recovered": slam.front_end.lost_matches,
         "matches_degenerate": slam.front_end.degenerate_matches,
+        "matches_disowned": slam.front_end.disowned_matches,
         **timing,
         "status": run_status(runtime.status, log, runtime),
         "runtime": runtime.report(),
