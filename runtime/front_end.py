@@ -347,8 +347,9 @@ class FrontEnd:
         return False
 
     def _remember(self, scan: PointScan) -> None:
-        """Keep ``scan`` as the previous scan; its field is built when first needed."""
-        n = scan.count
+        """Keep ``scan`` as the previous scan (at most ``sensor.max_points`` of it, as a node
+        keeps); its field is built when first needed."""
+        n = min(scan.count, self._previous.capacity)
         self._previous.buffer[:n] = scan.buffer[:n]
         self._previous.count = n
         self._previous_built = False
