@@ -126,7 +126,7 @@ class FrontEnd:
         # holds each wall once where the keyframe's submap may hold one twice (docs/method.md
         # §6.1, "The previous scan").
         self._previous = PointScan(points)
-        self._previous_field = self.matcher.new_reference()
+        self._previous_field = self.matcher.new_field()
         self._previous_built = False
         self.disowned_matches = 0  # matches the previous scan called lost
         self.status = "ok"

@@ -70,11 +70,13 @@ N_OUT = 8
 class ReferenceMaps:
     """A reference scan rendered for matching: its distance fields and local occupancy grid."""
 
-    def __init__(self, cells: int, coarse_cells: int = 1):
+    def __init__(self, cells: int, coarse_cells: int = 1, grid_cells: int | None = None):
+        """``grid_cells``: the local grid's side (default ``cells``; 1 where none is built)."""
+        grid_cells = cells if grid_cells is None else grid_cells
         self.field = np.zeros((cells, cells), dtype=np.float32)
         self.coarse_field = np.zeros((coarse_cells, coarse_cells), dtype=np.float32)
         self.coarse_meta = np.zeros(N_META, dtype=np.float64)
-        self.grid = np.zeros((cells, cells), dtype=np.uint8)
+        self.grid = np.zeros((grid_cells, grid_cells), dtype=np.uint8)
         self.meta = np.zeros(N_META, dtype=np.float64)
         self.ready = False
 
@@ -332,6 +334,10 @@ class ScanMatcher:
         if c.coarse_resolution > 0:  # the same extent as the fine grid
             coarse = int(np.ceil(c.grid_cells * c.resolution / c.coarse_resolution))
         return ReferenceMaps(c.grid_cells, coarse)
+
+    def new_field(self) -> ReferenceMaps:
+        """A buffer for :meth:`build_field` alone: the fine field, no coarse field or grid."""
+        return ReferenceMaps(self.config.grid_cells, 1, grid_cells=1)
 
     def build_reference(self, scan: PointScan, out: ReferenceMaps | None = None) -> ReferenceMaps:
         """Render a reference scan's distance field (Eq. 14) and local grid (Eq. 16)."""
