@@ -25,7 +25,7 @@ from swarmslam.runtime.loop_closure import propagate_covariance
 from swarmslam.runtime.node_scans import NodeScans
 from swarmslam.runtime.pose import between, compose, interpolate
 from swarmslam.runtime.pose_graph import ODOMETRY, PoseGraph, information_from_sigma
-from swarmslam.runtime.scan import PointScan, reach
+from swarmslam.runtime.scan import PointScan
 from swarmslam.runtime.scan_matcher import ScanMatcher
 
 CAPACITY_STATUS = "capacity reached: localising against the last node, map frozen"
@@ -330,16 +330,10 @@ class FrontEnd:
         the prediction fitting at least ``previous_scan_fit`` of them. A keyframe's submap
         whose node scans were placed a few degrees apart holds a wall twice, and a scan
         tracked against it fits either copy; the previous scan, moments old, holds the wall
-        once (fr-clinic's halls: ±4° a scan, alternating; docs/method.md §6.1). Two poses that
-        move no point of the scan farther than ``track_inlier_distance`` apart are not checked:
-        within that band of each other they fit alike, and the field costs a build."""
+        once (fr-clinic's halls: ±4° a scan, alternating; docs/method.md §6.1)."""
         c = self.config.front_end
         if self.stale or c.previous_scan_gain >= 1 or self._previous.count == 0:
             return False  # a stale reading predicts nothing to vouch for
-        d = between(pose, guess)  # (a point at range r moves at most |Δt| + |Δθ|·r)
-        if math.hypot(d[0], d[1]) + abs(d[2]) * reach(scan.buffer, scan.count) \
-                <= c.track_inlier_distance:
-            return False
         if not self._previous_built:
             self.matcher.build_field(self._previous, self._previous_field)
             self._previous_built = True

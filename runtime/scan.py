@@ -91,15 +91,6 @@ def finite_points(points, count, out):
     return n
 
 
-@njit(cache=True)
-def reach(points, count):
-    """The farthest of ``points[:count]`` from the sensor (m; 0 for none)."""
-    r2 = 0.0
-    for i in range(count):
-        r2 = max(r2, points[i, 0] * points[i, 0] + points[i, 1] * points[i, 1])
-    return math.sqrt(r2)
-
-
 class PointScan:
     """A scan's valid points in its sensor frame, in a buffer allocated once.
 
