@@ -10,7 +10,9 @@ degrees off is outside point-to-point ICP's reach) and, for a relation shorter t
 more than those turns; over a few seconds odometry drifts far less), and count again at the
 best it finds. A right relation is already at (or within a centimetre or two of) the best fit,
 so ICP gains nothing; a relation the scans contradict gains ``min_gain`` or more once ICP moves
-it. A relation whose scans do not overlap cannot be checked and is never flagged.
+it. A relation whose scans do not overlap cannot be checked and is never flagged; one whose
+second scan has not a single point near the first's at the relation's own pose, and that ICP
+does not contradict, is *unsupported*: the scans do not show it, either way.
 
 Scored apart on the relations the scans confirm and on those they contradict, a trajectory
 shows how much of its relation error is the reference's own: an error there is not the SLAM's.
@@ -23,11 +25,11 @@ scores the trajectory again on that clock (scripts/relations_clock.py).
     >>> side = np.c_[np.full(61, 2.0), np.linspace(-1, 2, 61)]   # ... and one to the left
     >>> room = np.r_[wall, side]
     >>> seen_from = lambda x: room - [x, 0.0]                    # the robot moved x along x
-    >>> relations = Relations(np.array([0.0, 0.0]), np.array([1.0, 1.0]),
-    ...                       np.array([[0.3, 0.0, 0.0], [0.6, 0.3, 0.0]]))
+    >>> relations = Relations(np.array([0.0, 0.0, 0.0]), np.array([1.0, 1.0, 1.0]),
+    ...                       np.array([[0.3, 0.0, 0.0], [0.6, 0.3, 0.0], [0.3, 9.0, 0.0]]))
     >>> audit = audit_scans([seen_from(0.0), seen_from(0.3)], np.array([0.0, 1.0]), relations)
-    >>> audit.contradicted.tolist()
-    [False, True]
+    >>> audit.contradicted.tolist(), audit.unsupported.tolist()
+    ([False, True, False], [False, False, True])
 """
 
 from __future__ import annotations
@@ -69,8 +71,8 @@ ODOMETRY_START_GAP = SHORT_GAP
 class Audit:
     """Per relation: ``checked`` (both scans found, with points), the share of the second
     scan's points fitting the first placed by the relation (``fit``) and by ICP's best from
-    it (``fit_aligned``), ICP's correction of the relation (``correction``: x, y, yaw), and
-    ``contradicted``: ICP gained at least ``min_gain``."""
+    it (``fit_aligned``), ICP's correction of the relation (``correction``: x, y, yaw),
+    ``contradicted``: ICP gained at least ``min_gain``, and :attr:`unsupported`."""
 
     checked: np.ndarray
     fit: np.ndarray
@@ -79,13 +81,21 @@ class Audit:
     contradicted: np.ndarray
     min_gain: float
 
+    @property
+    def unsupported(self) -> np.ndarray:
+        """Checked, not contradicted, and no point of the second scan fits the first at
+        the relation's own pose (``fit`` 0): the scans do not show the relation."""
+        return self.checked & ~self.contradicted & (self.fit == 0.0)
+
     def summary(self, relations: Relations) -> dict:
         local = np.abs(relations.t2 - relations.t1) < LOCAL_GAP
         out = {"relations": len(relations), "checked": int(self.checked.sum()),
-               "contradicted": int(self.contradicted.sum()), "min_gain": self.min_gain}
+               "contradicted": int(self.contradicted.sum()),
+               "unsupported": int(self.unsupported.sum()), "min_gain": self.min_gain}
         for name, part in (("local", local), ("global", ~local)):
             out[f"checked_{name}"] = int((self.checked & part).sum())
             out[f"contradicted_{name}"] = int((self.contradicted & part).sum())
+            out[f"unsupported_{name}"] = int((self.unsupported & part).sum())
         bad = self.contradicted
         if np.any(bad):
             c = self.correction[bad]
@@ -164,12 +174,17 @@ def audit_log(log_path, relations: Relations, min_gain: float = MIN_GAIN, label:
 
 def scored_apart(stamps, poses, relations: Relations, audit: Audit) -> dict:
     """:func:`kummerle` over all relations, and apart over those the scans do not contradict
-    (``confirmed``) and those they do (``contradicted``)."""
+    (``confirmed``), those they do (``contradicted``), those they do not show
+    (``unsupported``: :attr:`Audit.unsupported`) and those they neither contradict nor fail to
+    show (``supported``)."""
     def part(mask) -> Relations:
         return Relations(relations.t1[mask], relations.t2[mask], relations.delta[mask])
 
     out = {"all": kummerle(stamps, poses, relations)}
-    for name, mask in (("confirmed", ~audit.contradicted), ("contradicted", audit.contradicted)):
+    parts = (("confirmed", ~audit.contradicted), ("contradicted", audit.contradicted),
+             ("unsupported", audit.unsupported),
+             ("supported", ~audit.contradicted & ~audit.unsupported))
+    for name, mask in parts:
         if np.any(mask):
             try:
                 out[name] = kummerle(stamps, poses, part(mask))
@@ -247,6 +262,8 @@ def fits_of_gross_failures(short: dict, scans, scan_stamps, stamps, poses,
 
 
 WORST_SHOWN = 10  # the worst relations printed (the JSON keeps WORST_KEPT)
+SCANS_SAY = {(True, False): "contradict it", (False, True): "do not show it",
+             (False, False): "agree"}  # (contradicted, unsupported)
 WORST_KEPT = 50
 
 
@@ -254,8 +271,9 @@ def worst_relations(stamps, poses, relations: Relations, scan_stamps, odometry, 
                     count: int = WORST_KEPT) -> list[dict]:
     """The ``count`` relations with the largest heading error of the trajectory, each with
     odometry's own error there, the fastest odometry turn between its two scans (°/s) and
-    whether its scans contradict it: an error within a degree or two of odometry's, at a fast
-    turn, is one where the trajectory rode odometry."""
+    whether its scans contradict it or do not show it (:attr:`Audit.unsupported`): an error
+    within a degree or two of odometry's, at a fast turn, is one where the trajectory rode
+    odometry."""
     ok, e_t, e_r = relation_errors(stamps, poses, relations)
     ok_o, _, e_r_o = relation_errors(scan_stamps, odometry, relations)
     odometry_error = np.full(len(relations), np.nan)
@@ -276,7 +294,8 @@ def worst_relations(stamps, poses, relations: Relations, scan_stamps, odometry, 
                     "seconds": float(abs(relations.t2[r] - relations.t1[r])),
                     "eT": float(e_t[k]), "eR_deg": float(e_r[k]),
                     "odometry_eR_deg": float(odometry_error[r]), "turn_rate_deg_s": turn,
-                    "contradicted": bool(audit.contradicted[r])})
+                    "contradicted": bool(audit.contradicted[r]),
+                    "unsupported": bool(audit.unsupported[r])})
     return out
 
 
@@ -298,6 +317,9 @@ def audit_command(log_path, relations_path, trajectory_path=None, json_path=None
           f"≥ {min_gain:.0%} more of the points): {result['contradicted_local']} of "
           f"{result['checked_local']} local, {result['contradicted_global']} of "
           f"{result['checked_global']} global")
+    print(f"  {result['unsupported']} unsupported (not contradicted, and no point of the second "
+          f"scan within {INLIER_DISTANCE} m of the first's at the relation's pose): "
+          f"{result['unsupported_local']} local, {result['unsupported_global']} global")
     if "correction_m_median" in result:
         print(f"  the scans move a contradicted relation by {result['correction_m_median']:.3f} m"
               f" / {result['correction_deg_median']:.2f}° (median)")
@@ -332,7 +354,7 @@ def audit_command(log_path, relations_path, trajectory_path=None, json_path=None
         for w in result["worst"][:WORST_SHOWN]:
             print(f"  {w['t1']:17.3f} {w['seconds']:8.2f} {w['eR_deg']:6.2f} "
                   f"{w['odometry_eR_deg']:10.2f} {w['turn_rate_deg_s']:8.1f}  "
-                  f"{'contradict it' if w['contradicted'] else 'agree'}")
+                  f"{SCANS_SAY[(w['contradicted'], w['unsupported'])]}")
     clock = reference_clock(scan_stamps, odometry, relations,
                             (stamps, poses) if trajectory_path else None)
     result["clock"] = clock
@@ -366,6 +388,10 @@ def audit_command(log_path, relations_path, trajectory_path=None, json_path=None
              "fit": float(audit.fit[k]), "fit_aligned": float(audit.fit_aligned[k]),
              "correction": [float(v) for v in audit.correction[k]]}
             for k in np.flatnonzero(audit.contradicted)]
+        result["unsupported_relations"] = [
+            {"t1": float(relations.t1[k]), "t2": float(relations.t2[k]),
+             "fit_aligned": float(audit.fit_aligned[k])}
+            for k in np.flatnonzero(audit.unsupported)]
         write_json_atomic(json_path, result)
         print(f"wrote {json_path}")
     return result

@@ -99,6 +99,39 @@ def test_a_relation_naming_a_scan_the_log_lacks_is_not_checked(tmp_path):
     assert (result["relations"], result["checked"], result["contradicted"]) == (2, 1, 0)
 
 
+def test_a_relation_its_scans_do_not_show_is_unsupported_and_scored_apart(tmp_path, capsys):
+    # One relation, 11 s long (odometry's motion is no start for ICP), puts the second scan
+    # 30 m and 29° off, where not one of its points lies near the first scan's and ICP (pairing
+    # within 0.5 m) finds nothing to move it by: the scans do not show it either way. It is
+    # not contradicted, and a trajectory is scored apart on it and on the relations the scans
+    # support.
+    poses, stamps = write_room_log(tmp_path / "room.clf.gz")
+    i = np.r_[np.arange(len(poses) - 1), 0]
+    j = np.r_[np.arange(1, len(poses)), len(poses) - 1]
+    delta = between(poses[j], poses[i])
+    delta[-1] = compose(delta[-1], np.array([0.0, 30.0, 0.5]))
+    (tmp_path / "room.relations").write_text(relations_text(stamps[i], stamps[j], delta))
+    write_tum(tmp_path / "truth.tum", stamps, poses)
+    out = tmp_path / "audit.json"
+    assert main(["relations", "audit", str(tmp_path / "room.clf.gz"),
+                 str(tmp_path / "room.relations"), "--trajectory", str(tmp_path / "truth.tum"),
+                 "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert (result["contradicted"], result["unsupported"], result["unsupported_local"]) == (0, 1, 1)
+    assert [(r["t1"], r["t2"]) for r in result["unsupported_relations"]] == [
+        (float(stamps[0]), float(stamps[-1]))]
+    scores = result["scores"]
+    assert scores["unsupported"]["relations_used"] == 1 and scores["unsupported"]["eT"] > 29
+    assert scores["supported"]["relations_used"] == len(i) - 1
+    assert scores["supported"]["eT"] < 1e-3  # the true trajectory errs only there
+    worst = result["worst"]  # the trajectory's worst: the relation, which its scans do not show
+    assert (worst[0]["t1"], worst[0]["t2"]) == (float(stamps[0]), float(stamps[-1]))
+    assert worst[0]["unsupported"] and not any(w["unsupported"] for w in worst[1:])
+    printed = capsys.readouterr().out
+    assert "1 unsupported" in printed and "  unsupported  eT" in printed
+    assert "do not show it" in printed.split("worst relations")[1]
+
+
 def test_a_bad_min_gain_is_refused_before_any_work(tmp_path, capsys):
     assert main(["relations", "audit", str(tmp_path / "none.clf"), str(tmp_path / "none"),
                  "--min-gain", "0"]) == 2
