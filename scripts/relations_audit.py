@@ -262,9 +262,10 @@ def fits_of_gross_failures(short: dict, scans, scan_stamps, stamps, poses,
 
 
 WORST_SHOWN = 10  # the worst relations printed (the JSON keeps WORST_KEPT)
-SCANS_SAY = {(True, False): "contradict it", (False, True): "do not show it",
-             (False, False): "agree"}  # (contradicted, unsupported)
 WORST_KEPT = 50
+# what a relation's scans say of it, by (contradicted, unsupported)
+SCANS_SAY = {(True, False): "contradict it", (False, True): "do not show it",
+             (False, False): "agree"}
 
 
 def worst_relations(stamps, poses, relations: Relations, scan_stamps, odometry, audit: Audit,
@@ -328,7 +329,8 @@ def audit_command(log_path, relations_path, trajectory_path=None, json_path=None
         result["trajectory"] = str(trajectory_path)
         result["scores"] = scored_apart(stamps, poses, relations, audit)
         for name, s in result["scores"].items():
-            line = f"  {name:12} eT {s['eT']:.4f} m, eR {s['eR_deg']:.3f}° ({s['relations_used']})"
+            line = (f"  {name:12} eT {s['eT']:.4f} m, eR {s['eR_deg']:.3f}° "
+                    f"({s['relations_used']})")
             if "eT_local" in s:
                 line += (f"; local eT {s['eT_local']:.4f} m, eR {s['eR_local_deg']:.3f}° "
                          f"({s['relations_local']})")

@@ -117,7 +117,8 @@ def test_a_relation_its_scans_do_not_show_is_unsupported_and_scored_apart(tmp_pa
                  str(tmp_path / "room.relations"), "--trajectory", str(tmp_path / "truth.tum"),
                  "--json", str(out)]) == 0
     result = json.loads(out.read_text())
-    assert (result["contradicted"], result["unsupported"], result["unsupported_local"]) == (0, 1, 1)
+    counts = result["contradicted"], result["unsupported"], result["unsupported_local"]
+    assert counts == (0, 1, 1)
     assert [(r["t1"], r["t2"]) for r in result["unsupported_relations"]] == [
         (float(stamps[0]), float(stamps[-1]))]
     scores = result["scores"]
