@@ -345,7 +345,6 @@ class ScanMatcher:
             raise ValueError("reference scan is empty")
         ref = self._default_reference if out is None else out
         c = self.config
-        inv_c2 = self.settings[S_INV_C2] if c.kernel == "cauchy" else 0.0
         self.build_field(scan, ref)
         if c.coarse_resolution > 0:
             build_distance_field(
@@ -362,7 +361,8 @@ class ScanMatcher:
             )
         if c.scan_to_map:
             build_local_map(
-                scan.buffer, scan.count, ref.field, ref.meta, inv_c2, c.occupied_radius, ref.grid
+                scan.buffer, scan.count, ref.field, ref.meta, self._inv_c2(), c.occupied_radius,
+                ref.grid
             )
         ref.ready = True
         return ref
@@ -372,9 +372,13 @@ class ScanMatcher:
         :meth:`inlier_fraction` reads, not yet a reference to align with (``out.ready`` is
         left as it was)."""
         c = self.config
-        inv_c2 = self.settings[S_INV_C2] if c.kernel == "cauchy" else 0.0
         build_distance_field(scan.buffer, scan.count, c.resolution, c.field_radius, c.max_gap,
-                             inv_c2, out.field, out.meta, c.surface_bend, c.surface_gap_ratio)
+                             self._inv_c2(), out.field, out.meta, c.surface_bend,
+                             c.surface_gap_ratio)
+
+    def _inv_c2(self) -> float:
+        """The fine field's Cauchy kernel, ``1/c²`` (0: the field holds plain ``d²``)."""
+        return self.settings[S_INV_C2] if self.config.kernel == "cauchy" else 0.0
 
     def set_search_box(self, guess=None, window=None) -> None:
         """Centre the search box on ``guess`` (e.g. odometry), else on no motion; ``window``:
@@ -457,7 +461,6 @@ class ScanMatcher:
                         distance: float, slope: float = 0.0) -> float:
         """Share of ``scan``'s points within ``distance`` (+ ``slope`` × the point's range) of
         the reference surface at ``pose``."""
-        inv_c2 = self.settings[S_INV_C2] if self.config.kernel == "cauchy" else 0.0
         return float(inlier_fraction(reference.field, reference.meta, scan.buffer, scan.count,
                                      float(pose[0]), float(pose[1]), float(pose[2]),
-                                     float(distance), float(slope), inv_c2))
+                                     float(distance), float(slope), self._inv_c2()))
