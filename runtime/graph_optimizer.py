@@ -157,52 +157,77 @@ def scatter(vals, slot, data):
 @njit(cache=True)
 def csc_pattern(rows, cols, size, cursor, sort_rows, sort_idx, slot, indices, indptr, diag):
     """Upper-triangle CSC pattern of the triplets (row ≤ col, both ≥ 0): ``indices`` and
-    ``indptr``, each triplet's ``slot`` in it (−1: dropped) and each column's diagonal slot;
-    a counting sort by column, then rows sorted and merged within each column."""
-    for c in range(size + 1):
+    ``indptr``, each triplet's ``slot`` in it (−1: dropped) and each column's diagonal slot.
+
+    The triplets come as 3×3 blocks (nine in a row, :func:`assemble`'s layout, permuted block
+    by block), so the pattern is found on blocks — a counting sort by block column, then block
+    rows sorted and merged within each — and written out three columns at a time: a ninth of
+    the entries to sort (INTEL's final graph: 0.14 ms against 0.61 entry by entry), and the
+    same pattern and slots as sorting every entry would give."""
+    nb = size // 3
+    groups = rows.shape[0] // 9
+    for c in range(nb + 1):
         cursor[c] = 0
+    for g in range(groups):  # a block's first entry (r = c = 0) says where the block is
+        r = rows[9 * g]
+        c = cols[9 * g]
+        if r >= 0 and c >= 0 and r <= c:
+            cursor[c // 3 + 1] += 1
+    for c in range(nb):
+        cursor[c + 1] += cursor[c]
+    for g in range(groups):
+        r = rows[9 * g]
+        c = cols[9 * g]
+        if r >= 0 and c >= 0 and r <= c:
+            q = cursor[c // 3]
+            sort_rows[q] = r // 3
+            sort_idx[q] = g
+            cursor[c // 3] = q + 1  # ends as the next block column's start
     for t in range(rows.shape[0]):
         slot[t] = -1
-        r = rows[t]
-        c = cols[t]
-        if r >= 0 and c >= 0 and r <= c:
-            cursor[c + 1] += 1
-    for c in range(size):
-        cursor[c + 1] += cursor[c]
-    for c in range(size + 1):
-        indptr[c] = cursor[c]  # column starts, for the moment
-    for t in range(rows.shape[0]):
-        r = rows[t]
-        c = cols[t]
-        if r >= 0 and c >= 0 and r <= c:
-            q = cursor[c]
-            sort_rows[q] = r
-            sort_idx[q] = t
-            cursor[c] = q + 1
     nnz = 0
-    for c in range(size):
-        a = indptr[c]
-        b = cursor[c]
-        for k in range(a + 1, b):  # insertion sort by row: a column holds a few dozen
+    for bc in range(nb):
+        a = cursor[bc - 1] if bc > 0 else 0
+        b = cursor[bc]
+        for k in range(a + 1, b):  # insertion sort by block row: a column holds a few
             r = sort_rows[k]
-            t = sort_idx[k]
+            g = sort_idx[k]
             q = k - 1
             while q >= a and sort_rows[q] > r:
                 sort_rows[q + 1] = sort_rows[q]
                 sort_idx[q + 1] = sort_idx[q]
                 q -= 1
             sort_rows[q + 1] = r
-            sort_idx[q + 1] = t
-        indptr[c] = nnz
+            sort_idx[q + 1] = g
+        distinct = 0
         last = -1
         for k in range(a, b):
             if sort_rows[k] != last:
                 last = sort_rows[k]
-                indices[nnz] = last
-                if last == c:
-                    diag[c] = nnz
-                nnz += 1
-            slot[sort_idx[k]] = nnz - 1
+                distinct += 1
+        above = distinct - 1 if last == bc else distinct  # blocks above the diagonal one
+        for c in range(3):  # scalar column 3·bc + c: 3 rows per block above, then c + 1
+            indptr[3 * bc + c] = nnz
+            nnz += 3 * above + (c + 1 if last == bc else 0)
+        rank = -1
+        last = -1
+        for k in range(a, b):
+            br = sort_rows[k]
+            if br != last:
+                last = br
+                rank += 1
+                for c in range(3):
+                    col = 3 * bc + c
+                    base = indptr[col] + 3 * rank
+                    for r in range(3 if br < bc else c + 1):
+                        indices[base + r] = 3 * br + r
+                    if br == bc:
+                        diag[col] = base + c
+            g = sort_idx[k]
+            for r in range(3):
+                for c in range(3):
+                    if br < bc or r <= c:
+                        slot[9 * g + 3 * r + c] = indptr[3 * bc + c] + 3 * rank + r
     indptr[size] = nnz
     return nnz
 

@@ -5,9 +5,10 @@ Why our own: the ``qdldl`` Python package converts its input through scipy on ev
 by the runtime's zero-growth test), and a robot's solver should not allocate per loop closure.
 
 * Ordering: exact minimum degree on the *node* graph (one vertex per 3×3 block, so a third of
-  the work of a scalar ordering), with adjacency as preallocated bitsets — a few ms for a
-  thousand nodes. Quality: on the INTEL and M3500 benchmarks the factor has about as many
-  entries as with AMD (the ``posegraph`` benchmark prints both figures' effect: its time).
+  the work of a scalar ordering), with adjacency as preallocated bitsets and the blocks left in
+  an indexed heap — about 1 ms for 1,300 nodes. Quality: on the INTEL and M3500 benchmarks the
+  factor has about as many entries as with AMD (the ``posegraph`` benchmark prints both
+  figures' effect: its time).
 * Symbolic and numeric factorisation: the QDLDL algorithm (Stellato, Banjac, Goulart, Bemporad,
   Boyd: elimination tree, column counts, up-looking LDLᵀ) on the permuted upper triangle.
 * The factor's entries are bounded by ``fill_capacity``; a pattern that needs more raises
@@ -32,18 +33,53 @@ def _popcount(x):
     return int((x * np.uint64(0x0101010101010101)) >> np.uint64(56))
 
 
-@njit(cache=True)
-def minimum_degree_blocks(ij, n_nodes, bits, degree, done, order):
-    """Elimination order of nodes 1..n−1 (node 0 is fixed) by exact minimum degree.
+@njit(cache=True, inline="always")
+def _heap_before(degree, a, b):
+    """Whether block ``a`` is eliminated before ``b``: lower degree, then lower index."""
+    return degree[a] < degree[b] or (degree[a] == degree[b] and a < b)
 
-    ``bits``: (capacity, words) uint64 adjacency scratch. Writes ``order[:n−1]`` with block
-    indices (node − 1)."""
+
+@njit(cache=True)
+def _heap_sift(heap, where, degree, pos, size, up):
+    """Move ``heap[pos]`` to its place in the binary heap ``heap[:size]``: first up (``up``:
+    its key may have fallen), then down (where a heap is being built, only down)."""
+    v = heap[pos]
+    while up and pos > 0:
+        parent = (pos - 1) // 2
+        if not _heap_before(degree, v, heap[parent]):
+            break
+        heap[pos] = heap[parent]
+        where[heap[pos]] = pos
+        pos = parent
+    while True:
+        child = 2 * pos + 1
+        if child >= size:
+            break
+        if child + 1 < size and _heap_before(degree, heap[child + 1], heap[child]):
+            child += 1
+        if not _heap_before(degree, heap[child], v):
+            break
+        heap[pos] = heap[child]
+        where[heap[pos]] = pos
+        pos = child
+    heap[pos] = v
+    where[v] = pos
+
+
+@njit(cache=True)
+def minimum_degree_blocks(ij, n_nodes, bits, degree, heap, where, order):
+    """Elimination order of nodes 1..n−1 (node 0 is fixed) by exact minimum degree, ties to
+    the lowest index.
+
+    ``bits``: (capacity, words) uint64 adjacency scratch; ``heap``, ``where``: an indexed
+    binary heap of the blocks left, by (degree, index), so that each step finds its block in
+    O(log n) rather than by a scan of all (INTEL's final graph, 1,293 nodes: 0.9 ms against
+    1.3). Writes ``order[:n−1]`` with block indices (node − 1)."""
     nb = n_nodes - 1
     words = (nb + 63) // 64
     for v in range(nb):
         for w in range(words):
             bits[v, w] = 0
-        done[v] = 0
     one = np.uint64(1)
     for k in range(ij.shape[0]):
         a = ij[k, 0] - 1
@@ -57,14 +93,21 @@ def minimum_degree_blocks(ij, n_nodes, bits, degree, done, order):
         for w in range(words):
             d += _popcount(bits[v, w])
         degree[v] = d
+        heap[v] = v
+        where[v] = v
+    for pos in range(nb // 2 - 1, -1, -1):
+        _heap_sift(heap, where, degree, pos, nb, False)
+    size = nb
     for step in range(nb):
-        best = -1
-        for v in range(nb):
-            if done[v] == 0 and (best < 0 or degree[v] < degree[best]):
-                best = v
+        best = heap[0]
+        size -= 1
+        heap[0] = heap[size]
+        where[heap[0]] = 0
+        where[best] = -1
+        if size > 0:
+            _heap_sift(heap, where, degree, 0, size, False)
         order[step] = best
-        done[best] = 1
-        # Eliminating ``best`` joins its neighbours into a clique.
+        # Eliminating ``best`` joins its neighbours (all still in the heap) into a clique.
         for w in range(words):
             word = bits[best, w]
             while word != 0:
@@ -79,6 +122,7 @@ def minimum_degree_blocks(ij, n_nodes, bits, degree, done, order):
                 for x in range(words):
                     d += _popcount(bits[u, x])
                 degree[u] = d
+                _heap_sift(heap, where, degree, where[u], size, True)
 
 
 @njit(cache=True)
@@ -197,7 +241,8 @@ class SparseLDL:
         nb = max(max_blocks, 1)
         self.bits = np.zeros((nb, (nb + 63) // 64), np.uint64)
         self.degree = np.zeros(nb, np.int64)
-        self.done = np.zeros(nb, np.int64)
+        self.heap = np.zeros(nb, np.int64)
+        self.where = np.zeros(nb, np.int64)
         self.order = np.zeros(nb, np.int64)
         self.pinv = np.zeros(n, np.int64)
         self.work = np.zeros(n, np.int64)
@@ -218,7 +263,8 @@ class SparseLDL:
         self.fill = 0
 
     def order_blocks(self, ij, n_nodes: int) -> None:
-        minimum_degree_blocks(ij, n_nodes, self.bits, self.degree, self.done, self.order)
+        minimum_degree_blocks(ij, n_nodes, self.bits, self.degree, self.heap, self.where,
+                              self.order)
 
     def analyse(self, n: int, Ap, Ai) -> int:
         fill = elimination_tree(n, Ap, Ai, self.work, self.Lnz, self.etree, self.Lp)
