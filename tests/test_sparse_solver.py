@@ -76,3 +76,50 @@ def test_the_csc_pattern_holds_each_upper_entry_once_sorted_and_each_triplet_fin
     slots = [where[(c, r)] if ok else -1 for r, c, ok in zip(rows, cols, kept)]
     assert gn._slot.tolist() == slots
     assert gn._diag.tolist() == [where[(c, c)] for c in range(size)]
+
+
+def qdldl_reference(n, Ap, Ai, Ax, Lp, etree):
+    """QDLDL's up-looking factorisation column by column, in plain Python floats (the same
+    IEEE operations in the same order): L's values and D."""
+    Li, Lx = [0] * Lp[n], [0.0] * Lp[n]
+    D, Dinv, yvals = [0.0] * n, [0.0] * n, [0.0] * n
+    nextcol, marker = list(Lp[:n]), [False] * n
+    for k in range(n):
+        D[k], reach = 0.0, []
+        for p in range(Ap[k], Ap[k + 1]):
+            b = Ai[p]
+            if b == k:
+                D[k] += Ax[p]
+                continue
+            yvals[b] = Ax[p]
+            path = []
+            while b != -1 and b < k and not marker[b]:
+                marker[b] = True
+                path.append(b)
+                b = etree[b]
+            reach += path[::-1]
+        for c in reversed(reach):  # children before parents
+            yc = yvals[c]
+            for j in range(Lp[c], nextcol[c]):
+                yvals[Li[j]] -= Lx[j] * yc
+            Li[nextcol[c]], Lx[nextcol[c]] = k, yc * Dinv[c]
+            D[k] -= yc * Lx[nextcol[c]]
+            nextcol[c] += 1
+            yvals[c], marker[c] = 0.0, False
+        Dinv[k] = 1.0 / D[k]
+    return Lx, D
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_factor_is_qdldls_to_the_bit_with_each_blocks_columns_taken_together(seed):
+    n = [3, 8, 20, 45, 90, 140][seed]
+    g = random_graph(200 + seed, n)
+    gn = GaussNewton(g)
+    gn._system()
+    ldl = gn.ldl
+    assert ldl.factor(gn._indptr, gn._indices, gn._data)
+    size = ldl.n
+    Lx, D = qdldl_reference(size, gn._indptr.tolist(), gn._indices.tolist(), gn._data.tolist(),
+                            ldl.Lp.tolist(), ldl.etree.tolist())
+    assert ldl.Lx[: ldl.fill].tolist() == Lx
+    assert ldl.D[:size].tolist() == D
