@@ -180,11 +180,11 @@ def _append(k, c, yc, tmp, Li, Lx, D, Dinv, nextcol, yvals, marker):
 @njit(cache=True, inline="always")
 def _block_columns(k, c, Lp, Li, Lx, D, Dinv, nextcol, yvals, marker):
     """Columns ``c``, ``c + 1``, ``c + 2`` of one 3×3 block (``c`` its first) applied to row
-    ``k`` in one pass over the rows below the block, which the three share: each of those
-    rows takes the three updates in the order the column-by-column loop gives them, so every
-    entry is the same to the bit, with a third of the passes over ``yvals``. False (nothing
-    done) if the columns are not laid out so: the two in-block entries first, then the same
-    count of shared rows."""
+    ``k`` in one pass over the rows below the block, which the three share in a matrix of full
+    3×3 blocks (the graph's): each of those rows takes the three updates in the order the
+    column-by-column loop gives them, so every entry is the same to the bit, with a third of
+    the passes over ``yvals``. False (nothing done) if the columns are not laid out so: the two
+    in-block entries first, then the same count of shared rows."""
     p0 = Lp[c]
     p1 = Lp[c + 1]
     p2 = Lp[c + 2]
