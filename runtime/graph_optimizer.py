@@ -270,8 +270,8 @@ class GaussNewton:
         self._diag_buf = np.zeros(unknowns, np.int64)
         self._data_buf = np.zeros(6 * graph.max_nodes + 9 * m)
         self._cursor = np.zeros(unknowns + 1, np.int64)
-        self._sort_rows = np.zeros(36 * m, np.int64)
-        self._sort_idx = np.zeros(36 * m, np.int64)
+        self._sort_rows = np.zeros(4 * m, np.int64)  # csc_pattern sorts blocks: 4 an edge
+        self._sort_idx = np.zeros(4 * m, np.int64)
         self._prows = np.zeros(36 * m, np.int64)
         self._pcols = np.zeros(36 * m, np.int64)
         self._dx = np.zeros(unknowns)
