@@ -6,7 +6,9 @@ Each new node joins a queue of fixed capacity. Its search then runs as a chain o
 * ``SELECT``: the node's gated candidates (Alg. 7, steps 1–2; microseconds);
 * ``ALIGN``: one candidate's alignment with the submap around it and the inlier test (Alg. 5
   on the loop matcher);
-* ``CLOSE``: add the edge, optimise the graph, keep or undo it (the consistency test);
+* ``CLOSE``: optimise a copy of the graph with the edge, one Gauss–Newton step per slice in
+  the budgeted schedule, then keep the edge and the new poses (the consistency test) or drop
+  them;
 * ``WIDE``: when the node's candidates gave nothing and no closure with an old node was kept
   for ``wide_after`` nodes, the wide search (:mod:`swarmslam.runtime.wide_loop_search`) over the old nodes'
   map; its proposal, if any, is aligned and closed as a candidate is. In the budgeted schedule
@@ -32,6 +34,7 @@ from swarmslam.runtime.degeneracy import Degeneracy
 from swarmslam.runtime.graph_optimizer import GaussNewton
 from swarmslam.runtime.loop_closure import LoopCloser, relative_guess, visibility
 from swarmslam.runtime.node_scans import NodeScans
+from swarmslam.runtime.pose import between, compose
 from swarmslam.runtime.pose_graph import LOOP, PoseGraph
 from swarmslam.runtime.scan import PointScan
 from swarmslam.runtime.scan_matcher import ScanMatcher
@@ -51,7 +54,10 @@ class BackEnd:
         lc, rc = config.loop_closure, config.runtime
         self.config = config
         self.graph, self.nodes, self.information = graph, nodes, information
-        self.optimizer = GaussNewton(graph, config.optimizer)
+        # A closure on trial is optimised in a copy of the graph: the front end goes on
+        # adding nodes to the graph itself between the trial's slices (docs/runtime.md §3).
+        self.trial = PoseGraph(graph.max_nodes, graph.max_edges)
+        self.optimizer = GaussNewton(self.trial, config.optimizer)
         self.loops = LoopCloser(lc)
         self.wide = WideLoopSearch(lc, graph.max_nodes, config.sensor.max_points,
                                    config.matcher.max_gap)
@@ -89,6 +95,7 @@ class BackEnd:
         self.z_info = np.eye(3)  # and its information
         self.widened = False  # the search under way has gone wide: its candidate is a proposal
         self._wide_steps = None  # the wide search under way (WideLoopSearch.search), if any
+        self._closing = None  # the closure on trial (_close_steps), if any
         self.guess = np.zeros(3)  # the proposal: the node's pose in the candidate's frame
         self.last_closure = 0  # the last node closed with an old one (wide_min_gap back)
         self.wide_from = 0  # the first node a wide search may run at (wide_spacing after one
@@ -173,13 +180,9 @@ class BackEnd:
             if self._wide_steps is None:
                 self._wide_steps = self.wide.search(self.graph.poses, self.nodes, self.node,
                                                     self.last_closure, sliced)
-            try:
-                next(self._wide_steps)
-                while not sliced:
-                    next(self._wide_steps)
+            done, proposal = _advance(self._wide_steps, sliced)
+            if not done:
                 return  # the search goes on in the next WIDE slice
-            except StopIteration as stop:
-                proposal = stop.value
             self._wide_steps = None
             if self.wide.fitted == 0:  # new ground: the next nodes see much the same
                 self.wide_from = self.node + self.loops.config.wide_spacing
@@ -203,7 +206,13 @@ class BackEnd:
                 self.z[:] = z
                 self.phase = CLOSE
             return
-        if self.close_loop(candidate, self.node, self.z):
+        if self._closing is None:
+            self._closing = self._close_steps(candidate, self.node, self.z)
+        done, kept = _advance(self._closing, sliced)
+        if not done:
+            return  # the trial goes on in the next CLOSE slice
+        self._closing = None
+        if kept:
             self._finish()
         else:
             self._next_candidate()
@@ -259,6 +268,7 @@ class BackEnd:
             self._finish()
 
     def _finish(self) -> None:
+        self._wide_steps = self._closing = None  # (cut short when the edges ran out)
         self.node = -1
         self.phase = SELECT
         self.widened = False
@@ -354,33 +364,54 @@ class BackEnd:
         return bool(np.any(np.abs(pose - centre) >= margin * window))
 
     def close_loop(self, candidate: int, node: int, z) -> bool:
-        """Step 3b: add the loop edge, re-optimise (Eq. 21), and keep the edge only if the
-        graph stays consistent; otherwise remove it and restore the poses."""
-        g, loops = self.graph, self.loops
+        """Step 3b now: add the loop edge, re-optimise (Eq. 21), and keep the edge only if the
+        graph stays consistent; otherwise the graph is left as it was."""
+        return _advance(self._close_steps(candidate, node, z), sliced=False)[1]
+
+    def _close_steps(self, candidate: int, node: int, z):
+        """Step 3b as a chain of CLOSE slices (a generator returning whether the edge was
+        kept): the graph is copied with the edge added and optimised one Gauss–Newton step
+        per slice; a consistent result is then written back, with the nodes the front end
+        added meanwhile carried along by their edges (docs/runtime.md §3)."""
+        g, trial, loops = self.graph, self.trial, self.loops
         if self.edges_full():
             return False
         total_before = g.chi2()
-        saved = self._saved_poses[: g.n_nodes]
-        saved[:] = g.poses[: g.n_nodes]
-        edge = g.add_edge(candidate, node, z, self.z_info, LOOP)
+        trial.copy_from(g)
+        n, m = g.n_nodes, g.n_edges
+        edge = trial.add_edge(candidate, node, z, self.z_info, LOOP)
         try:  # on trial: judged at its full weight; one Gauss–Newton does not absorb is
             # refused without the Levenberg–Marquardt restart (a deadline's worth of steps)
-            settled = self.optimizer.optimize(exempt=edge, fallback=False).converged
+            settled = (yield from self.optimizer.steps(exempt=edge)).converged
         except FactorCapacityError as exc:  # the graph as it was; localising goes on
-            g.remove_last_edge()
-            g.poses[: g.n_nodes] = saved
             self.status = f"capacity reached: {exc}"
             return False
-        if settled and loops.consistent(g, edge, total_before, proposal=self.widened):
-            loops.accepted += 1
-            self.revision += 1
-            if node - candidate >= loops.config.wide_min_gap:  # a closure with the old map
-                self.last_closure = node
-            return True
-        g.remove_last_edge()
-        g.poses[: g.n_nodes] = saved
-        loops.rejected_consistency += 1
-        return False
+        if not (settled and loops.consistent(trial, edge, total_before,
+                                             proposal=self.widened)):
+            loops.rejected_consistency += 1
+            return False
+        if self.edges_full():  # the front end took the last edges meanwhile
+            return False
+        self._take_trial_poses(n, m)
+        g.add_edge(candidate, node, z, self.z_info, LOOP)
+        loops.accepted += 1
+        self.revision += 1
+        if node - candidate >= loops.config.wide_min_gap:  # a closure with the old map
+            self.last_closure = node
+        return True
+
+    def _take_trial_poses(self, n: int, m: int) -> None:
+        """The trial's optimised poses for the graph's first ``n`` nodes; each node the front
+        end added since (by edges ``m`` on) keeps its place relative to the node its edge
+        comes from, as that node moved."""
+        g = self.graph
+        old = self._saved_poses[: g.n_nodes]
+        old[:] = g.poses[: g.n_nodes]
+        g.poses[:n] = self.trial.poses[:n]
+        for e in range(m, g.n_edges):
+            i, j = int(g.ij[e, 0]), int(g.ij[e, 1])
+            if i < j and j >= n:
+                g.poses[j] = compose(g.poses[i], between(old[j], old[i]))
 
     def edges_full(self) -> bool:
         """True (and said in the status) once the edge capacity leaves no room for a loop."""
@@ -440,6 +471,7 @@ class BackEnd:
         self.guess[:] = state["guess"]
         self.widened = bool(state["widened"])
         self._wide_steps = None  # a wide search under way begins again: it keeps no state
+        self._closing = None  # and so does a closure on trial (the graph holds no trial edge)
         self.last_closure = int(state["last_closure"])
         self.wide_from = int(state.get("wide_from", 0))  # older sessions: none kept
         self.n_failed = len(failed)
@@ -452,3 +484,15 @@ class BackEnd:
             int(state[k]) for k in ("phase", "next_candidate", "waited", "enqueued", "searched",
                                     "dropped", "deferred", "forced", "revision"))
         self.status = str(state["status"])
+
+
+def _advance(steps, sliced: bool):
+    """One slice of a chain of ``steps`` (a generator), or all that is left of it when not
+    ``sliced``: (whether it finished, what it returned)."""
+    try:
+        next(steps)
+        while not sliced:
+            next(steps)
+        return False, None
+    except StopIteration as stop:
+        return True, stop.value

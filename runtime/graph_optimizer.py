@@ -335,7 +335,27 @@ class GaussNewton:
         If it has not converged after ``max_iterations``, Levenberg–Marquardt restarts from
         the first poses — or, without ``fallback``, the poses are restored and the report says
         ``converged=False`` (a closure on trial: Intel's one LM restart on trial took 264
-        iterations, 142 ms, for a closure that was then refused).
+        iterations, 142 ms, for a closure that was then refused)."""
+        t0 = time.perf_counter()
+        steps = self.steps(exempt)
+        while True:
+            try:
+                next(steps)
+            except StopIteration as stop:
+                report = stop.value
+                break
+        if report.converged or not fallback:
+            return report
+        chi2, more = self._levenberg_marquardt()
+        return OptimizeReport(report.chi2_initial, chi2, report.iterations + more,
+                              time.perf_counter() - t0, self.solver + "+lm")
+
+    def steps(self, exempt: int = -1):
+        """:meth:`optimize` without its fallback, one Gauss–Newton step at a time: a generator
+        that yields after each step that leaves the optimisation unfinished and returns the
+        :class:`OptimizeReport` (not converged: the poses it started from restored). A
+        closure on trial is optimised a step per back-end slice this way, so that one large
+        graph's solve does not overrun a tick (docs/runtime.md §3).
         The robust weights are set once, at the poses the call starts from: re-weighting at
         every step kept χ² from settling (Intel: 7 of 858 optimisations fell back to
         Levenberg–Marquardt, up to 95 ms, where plain least squares never took over 20 ms)."""
@@ -361,17 +381,14 @@ class GaussNewton:
             b, new = self._system()
             converged = 0.0 <= chi2 - new <= self.tolerance * chi2
             chi2 = new
-            if converged or not np.isfinite(chi2):
+            if converged or not np.isfinite(chi2) or iterations == self.max_iterations:
                 break
+            yield
         if converged:
             return OptimizeReport(initial, chi2, iterations, time.perf_counter() - t0, self.solver)
         poses[:] = start
-        if not fallback:
-            return OptimizeReport(initial, initial, iterations, time.perf_counter() - t0,
-                                  self.solver, converged=False)
-        chi2, more = self._levenberg_marquardt()
-        return OptimizeReport(initial, chi2, iterations + more, time.perf_counter() - t0,
-                              self.solver + "+lm")
+        return OptimizeReport(initial, initial, iterations, time.perf_counter() - t0,
+                              self.solver, converged=False)
 
     def _levenberg_marquardt(self):
         """Nielsen's damping: shrink μ by the gain ratio on success, grow it on failure."""

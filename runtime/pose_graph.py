@@ -121,6 +121,20 @@ class PoseGraph:
         self.n_edges -= 1
         self.revision += 1
 
+    def copy_from(self, other: "PoseGraph") -> None:
+        """Take ``other``'s nodes and edges into this graph's buffers (no allocation; the
+        capacities must hold them). The revision moves on from this graph's own, so that a
+        solver's cached pattern never takes the copy for an edge set it saw before."""
+        n, m = other.n_nodes, other.n_edges
+        if n > self.max_nodes or m > self.max_edges:
+            raise CapacityError(f"{n} nodes and {m} edges exceed the capacities "
+                                f"{self.max_nodes} and {self.max_edges}")
+        self.poses[:n], self.stamps[:n] = other.poses[:n], other.stamps[:n]
+        self.ij[:m], self.z[:m], self.info[:m] = other.ij[:m], other.z[:m], other.info[:m]
+        self.kind[:m] = other.kind[:m]
+        self.n_nodes, self.n_edges = n, m
+        self.revision += 1
+
     # ------------------------------------------------------------------ state
     def state(self) -> dict:
         n, m = self.n_nodes, self.n_edges

@@ -24,7 +24,8 @@ from swarmslam.runtime.config import (
     override,
 )
 from swarmslam.runtime.fixed_rate import SlamRuntime
-from swarmslam.runtime.pose import between
+from swarmslam.runtime.pose import between, compose
+from swarmslam.runtime.pose_graph import LOOP
 from swarmslam.runtime.scan import PointScan
 from swarmslam.runtime.session import SessionError, read_session, write_session
 from swarmslam.runtime.slam import GraphSlam
@@ -601,3 +602,105 @@ def test_the_budgeted_runtime_commits_its_buffers_at_start_up():
     assert budgeted.reserved_bytes >= slam.nodes.points.nbytes + grids
     lockstep = SlamRuntime(override(small, {"runtime.schedule": "lockstep"}))
     assert lockstep.reserved_bytes == 0  # the simulator's schedule: nothing committed
+
+
+@pytest.fixture(scope="module")
+def mapped():
+    """A lockstep run around the loop: its state, and a closure the back end can try (the
+    drive's first node seen from its last, as the graph has it, nudged)."""
+    angles, records = recorded_drive(120)
+    slam = GraphSlam(QUICK, seed=5)
+    scan = PointScan(len(angles))
+    for k, (_, odometry, ranges) in enumerate(records):
+        scan.set_ranges(ranges, angles, 0.05, 12.0)
+        slam.step(scan, odometry, float(k))
+    g = slam.graph
+    z = between(g.poses[g.n_nodes - 1], g.poses[1]) + np.array([0.05, -0.03, 0.01])
+    return slam.state(), z
+
+
+def trial_ready(mapped, z_offset=(0.0, 0.0, 0.0)):
+    """A back end restored from ``mapped`` with the closure aligned (``z`` moved by
+    ``z_offset``), and its candidate and node."""
+    state, z = mapped
+    slam = GraphSlam(QUICK, seed=5)
+    slam.restore(state)
+    back = slam.back_end
+    back.z[:] = z + np.asarray(z_offset)
+    back.z_info[:] = slam.front_end.information(loop=True)
+    return slam, back, 1, slam.graph.n_nodes - 1
+
+
+def add_node_as_front_end(graph, step):
+    """What the front end does at a new node: placed by the newest node's pose and an edge."""
+    node = graph.add_node(compose(graph.poses[graph.n_nodes - 1], step))
+    graph.add_edge(node - 1, node, step, np.eye(3))
+    return node
+
+
+def test_a_closure_on_trial_is_optimised_a_step_per_slice_while_the_front_end_adds_nodes(mapped):
+    """Budgeted, a CLOSE optimises a copy of the graph one Gauss–Newton step per slice
+    (docs/runtime.md §3): the graph itself holds no trial edge between slices, the nodes the
+    front end adds meanwhile stay where it put them relative to their predecessor, and the
+    closure kept gives the old nodes the poses an atomic one gives."""
+    slam, back, candidate, node = trial_ready(mapped)
+    assert back.close_loop(candidate, node, back.z)
+    g = slam.graph
+    atomic, n = g.poses[: g.n_nodes].copy(), g.n_nodes
+    assert g.kind[g.n_edges - 1] == LOOP
+
+    slam, back, candidate, node = trial_ready(mapped)
+    g = slam.graph
+    edges, before = g.n_edges, g.poses[:n].copy()
+    steps = back._close_steps(candidate, node, back.z)
+    next(steps)  # the first step: more are to come
+    assert g.n_edges == edges and np.array_equal(g.poses[:n], before)
+    step = np.array([0.3, 0.02, 0.05])
+    added = [add_node_as_front_end(g, step) for _ in range(2)]
+    with pytest.raises(StopIteration) as stop:
+        while True:
+            next(steps)
+    assert stop.value.value is True
+    assert np.array_equal(g.poses[:n], atomic[:n])  # the same solve, only later
+    assert tuple(g.ij[g.n_edges - 1]) == (candidate, node) and g.kind[g.n_edges - 1] == LOOP
+    assert g.n_edges == edges + 3  # two node edges, then the loop edge
+    moved = between(g.poses[n - 1], before[n - 1])
+    assert np.linalg.norm(moved[:2]) > 1e-3  # the closure moved the newest old node ...
+    for k in added:  # ... and its successors with it
+        assert np.allclose(between(g.poses[k], g.poses[k - 1]), step, atol=1e-12)
+
+
+def test_a_closure_refused_after_its_slices_leaves_the_graph_as_the_front_end_left_it(mapped):
+    slam, back, candidate, node = trial_ready(mapped, z_offset=(3.0, -2.0, 0.8))
+    g = slam.graph
+    steps = back._close_steps(candidate, node, back.z)
+    next(steps)
+    add_node_as_front_end(g, np.array([0.3, 0.0, 0.0]))
+    edges, before = g.n_edges, g.poses[: g.n_nodes].copy()
+    rejected = back.loops.rejected_consistency
+    with pytest.raises(StopIteration) as stop:
+        while True:
+            next(steps)
+    assert stop.value.value is False and back.loops.rejected_consistency == rejected + 1
+    assert g.n_edges == edges and np.array_equal(g.poses[: g.n_nodes], before)
+
+
+def test_a_session_saved_during_a_trial_resumes_it_from_the_start(mapped):
+    """The saved graph has no trial edge; the restored back end runs the CLOSE again and keeps
+    the same closure with the same poses."""
+    slam, back, candidate, node = trial_ready(mapped)
+    back.candidates[0], back.n_candidates, back.next_candidate = candidate, 1, 0
+    back.node, back.phase = node, 2  # CLOSE
+    edges = slam.graph.n_edges
+    back._run_slice(2, sliced=True)
+    assert back._closing is not None and back.phase == 2  # under way
+    state = slam.state()
+    assert len(state["graph"]["ij"]) == edges
+    back.work(None, None)
+    expected = slam.graph.poses[: slam.graph.n_nodes].copy()
+    resumed = GraphSlam(QUICK, seed=5)
+    resumed.restore(state)
+    resumed.back_end.work(None, None)
+    g = resumed.graph
+    assert g.n_edges == edges + 1 and g.kind[edges] == LOOP
+    assert np.array_equal(g.poses[: g.n_nodes], expected)
