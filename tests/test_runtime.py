@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from swarmslam.runtime import allocator
+from swarmslam.runtime.back_end import CLOSE
 from swarmslam.runtime.config import (
     MatcherConfig,
     RuntimeConfig,
@@ -690,10 +691,10 @@ def test_a_session_saved_during_a_trial_resumes_it_from_the_start(mapped):
     the same closure with the same poses."""
     slam, back, candidate, node = trial_ready(mapped)
     back.candidates[0], back.n_candidates, back.next_candidate = candidate, 1, 0
-    back.node, back.phase = node, 2  # CLOSE
+    back.node, back.phase = node, CLOSE
     edges = slam.graph.n_edges
-    back._run_slice(2, sliced=True)
-    assert back._closing is not None and back.phase == 2  # under way
+    back._run_slice(CLOSE, sliced=True)
+    assert back._closing is not None and back.phase == CLOSE  # under way
     state = slam.state()
     assert len(state["graph"]["ij"]) == edges
     back.work(None, None)
