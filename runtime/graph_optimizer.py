@@ -338,12 +338,11 @@ class GaussNewton:
         iterations, 142 ms, for a closure that was then refused)."""
         t0 = time.perf_counter()
         steps = self.steps(exempt)
-        while True:
-            try:
+        try:
+            while True:
                 next(steps)
-            except StopIteration as stop:
-                report = stop.value
-                break
+        except StopIteration as stop:
+            report = stop.value
         if report.converged or not fallback:
             return report
         chi2, more = self._levenberg_marquardt()
