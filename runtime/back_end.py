@@ -25,6 +25,7 @@ drops its oldest node's search (counted; the runtime's status says so).
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -34,7 +35,7 @@ from swarmslam.runtime.degeneracy import Degeneracy
 from swarmslam.runtime.graph_optimizer import GaussNewton
 from swarmslam.runtime.loop_closure import LoopCloser, relative_guess, visibility
 from swarmslam.runtime.node_scans import NodeScans
-from swarmslam.runtime.pose import between, compose
+from swarmslam.runtime.pose import between, compose, wrap_angle
 from swarmslam.runtime.pose_graph import LOOP, PoseGraph
 from swarmslam.runtime.scan import PointScan
 from swarmslam.runtime.scan_matcher import ScanMatcher
@@ -98,6 +99,10 @@ class BackEnd:
         self._closing = None  # the closure on trial (_close_steps), if any
         self.guess = np.zeros(3)  # the proposal: the node's pose in the candidate's frame
         self.last_closure = 0  # the last node closed with an old one (wide_min_gap back)
+        # The last loop refused for the rise of the total alone (its own error passed): the
+        # candidate, the node and its measurement; a later one that agrees with it is judged
+        # by its own error (docs/method.md §5, step 4).
+        self.rise_refused = np.array([-1.0, -1.0, 0.0, 0.0, 0.0])
         self.wide_from = 0  # the first node a wide search may run at (wide_spacing after one
         # that fitted its scan nowhere)
         self.cost = np.zeros(len(SLICE_NAMES))  # expected seconds per slice kind (decaying max)
@@ -380,6 +385,7 @@ class BackEnd:
         trial.copy_from(g)
         n, m = g.n_nodes, g.n_edges
         edge = trial.add_edge(candidate, node, z, self.z_info, LOOP)
+        agreed = self._agrees(candidate, node, z)  # (the graph's poses before the trial)
         try:  # on trial: judged at its full weight; one Gauss–Newton does not absorb is
             # refused without the Levenberg–Marquardt restart (a deadline's worth of steps)
             settled = (yield from self.optimizer.steps(exempt=edge)).converged
@@ -387,9 +393,16 @@ class BackEnd:
             self.status = f"capacity reached: {exc}"
             return False
         if not (settled and loops.consistent(trial, edge, total_before,
-                                             proposal=self.widened)):
+                                             proposal=self.widened or agreed)):
             loops.rejected_consistency += 1
+            if settled and not self.widened and loops.consistent(trial, edge, total_before,
+                                                                 proposal=True):
+                self.rise_refused[:2] = candidate, node  # refused for the rise alone
+                self.rise_refused[2:] = z
             return False
+        if agreed:
+            loops.agreed += 1
+        self.rise_refused[:2] = -1.0
         if self.edges_full():  # the front end took the last edges meanwhile
             return False
         self._take_trial_poses(n, m)
@@ -399,6 +412,24 @@ class BackEnd:
         if node - candidate >= loops.config.wide_min_gap:  # a closure with the old map
             self.last_closure = node
         return True
+
+    def _agrees(self, candidate: int, node: int, z) -> bool:
+        """Whether the loop ``candidate`` → ``node`` (measurement ``z``) agrees with the last
+        one refused for the rise of the total alone: made from a node at most
+        ``agreement_nodes`` before ``node``, and placing ``node`` within
+        ``agreement_distance`` and ``agreement_angle`` of where this one does, through the
+        graph's short chains between the two nodes and between the two candidates. Two scans
+        matched apart that put the robot in the same place of the old map are evidence that
+        the drift the rise measures is real (docs/method.md §5, step 4)."""
+        c = self.loops.config
+        old, was = int(self.rise_refused[0]), int(self.rise_refused[1])
+        if old < 0 or self.widened or not 0 < node - was <= c.agreement_nodes:
+            return False
+        p = self.graph.poses
+        there = compose(compose(p[old], self.rise_refused[2:]), between(p[node], p[was]))
+        here = compose(p[candidate], z)
+        return bool(math.hypot(here[0] - there[0], here[1] - there[1]) <= c.agreement_distance
+                    and abs(wrap_angle(here[2] - there[2])) <= c.agreement_angle)
 
     def _take_trial_poses(self, n: int, m: int) -> None:
         """The trial's optimised poses for the graph's first ``n`` nodes; each node the front
@@ -439,6 +470,7 @@ class BackEnd:
             "waited": self.waited, "enqueued": self.enqueued, "searched": self.searched,
             "dropped": self.dropped, "deferred": self.deferred, "forced": self.forced,
             "revision": self.revision, "status": self.status,
+            "rise_refused": self.rise_refused.copy(), "agreed": self.loops.agreed,
         }
 
     def restore(self, state: dict) -> None:
@@ -484,6 +516,12 @@ class BackEnd:
             int(state[k]) for k in ("phase", "next_candidate", "waited", "enqueued", "searched",
                                     "dropped", "deferred", "forced", "revision"))
         self.status = str(state["status"])
+        refused = np.asarray(state.get("rise_refused", [-1.0, -1.0, 0.0, 0.0, 0.0]), np.float64)
+        if (refused.shape != (5,) or not np.all(np.isfinite(refused))
+                or not -1 <= refused[0] < n or not -1 <= refused[1] < n):
+            raise ValueError("the loop refused for its rise refers to nodes that do not exist")
+        self.rise_refused[:] = refused
+        self.loops.agreed = int(state.get("agreed", 0))
 
 
 def _advance(steps, sliced: bool):

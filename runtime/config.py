@@ -379,6 +379,14 @@ class LoopClosureConfig(Section):
     chi2_gate: float = _setting(7.81, "χ²₃ at 95% on the new edge's own error after optimising",
                                 gt=0)
     total_gate: float = _setting(16.27, "χ²₃ at 99.9% on the rise of the total error", gt=0)
+    agreement_nodes: int = _setting(
+        3, "a loop refused for the rise of the total alone is kept, judged by its own error, "
+        "when a loop made from one of this many nodes before it was refused so too and puts "
+        "the robot in the same place (docs/method.md §5, step 4); 0: never", ge=0)
+    agreement_distance: float = _setting(
+        0.1, "m: how near the two loops of agreement_nodes must place the node", gt=0)
+    agreement_angle: float = _setting(
+        0.02, "rad: and in heading", gt=0)
     min_inliers: float = _setting(0.8, "share of points on the submap's surfaces that accepts a "
                                   "loop match (strict: a wrong loop bends the map)", ge=0, le=1)
     min_overlap: float = _setting(
@@ -876,6 +884,8 @@ EXPERT_FIELDS = frozenset({
     "front_end.odometry_gate_share", "front_end.odometry_gate_fit",
     "front_end.odometry_gate_explained", "front_end.odometry_gate_distance",
     "front_end.previous_scan_gain", "front_end.previous_scan_fit", "front_end.standing_fit",
+    "loop_closure.agreement_nodes", "loop_closure.agreement_distance",
+    "loop_closure.agreement_angle",
     "front_end.standing_distance",
     "matcher.surface_bend", "matcher.surface_gap_ratio", "matcher.coarse_radius",
     "matcher.polish_step", "matcher.polish_halvings", "matcher.polish_evaluations",

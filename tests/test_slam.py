@@ -515,3 +515,36 @@ def test_a_robot_standing_still_is_not_matched_and_keeps_its_pose():
     assert np.hypot(*(poses[:, :2] - truth[:, :2]).T).max() < 0.05
     _, every, fe, _ = _stop_and_go(override(SlamConfig(), {"front_end.standing_fit": 1.5}))
     assert fe.standing_scans == 0 and set(standing) <= every
+
+
+def _drifted_chain(config, n=60, step=0.5, stretch=1.05):
+    """A GraphSlam whose graph is a straight chain of ``n`` nodes with odometry 5% long (1.5 m
+    of drift), and its back end ready to close loops measured by the truth."""
+    slam = GraphSlam(config, seed=0)
+    g, back = slam.graph, slam.back_end
+    info = slam.front_end.information()
+    for k in range(n):
+        g.add_node([k * step * stretch, 0.0, 0.0], float(k))
+        if k:
+            g.add_edge(k - 1, k, [step * stretch, 0.0, 0.0], info)
+    back.z_info[:] = slam.front_end.information(loop=True)
+    return slam, back, np.array([(n - 2) * step, 0.0, 0.0])
+
+
+@pytest.mark.parametrize("moved, kept", [(0.0, True), (0.3, False)])
+def test_a_loop_refused_for_the_drift_it_repairs_is_kept_when_the_next_agrees(moved, kept):
+    """A true loop after a long drift is absorbed (its own χ² passes) but raises the total
+    past ``total_gate``: refused. The next node's loop to the next old node, placing the robot
+    where the first did, is judged by its own error and kept; one placing it 0.3 m away is
+    refused as the first was (docs/method.md §5, step 4)."""
+    slam, back, z = _drifted_chain(SlamConfig())
+    loops, n = back.loops, slam.graph.n_nodes
+    assert not back.close_loop(0, n - 2, z) and loops.rejected_consistency == 1
+    assert back.rise_refused[1] == n - 2
+    assert back.close_loop(1, n - 1, z + [moved, 0.0, 0.0]) is kept
+    assert loops.agreed == int(kept) and loops.rejected_consistency == 2 - int(kept)
+    if kept:  # the drift repaired: the far end, 1.48 m long, pulled back near the truth
+        assert abs(slam.graph.poses[n - 1, 0] - (n - 1) * 0.5) < 0.15
+    slam, back, z = _drifted_chain(override(SlamConfig(), {"loop_closure.agreement_nodes": 0}))
+    back.close_loop(0, n - 2, z)
+    assert not back.close_loop(1, n - 1, z)  # without the rule, refused as before
