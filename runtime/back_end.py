@@ -393,15 +393,15 @@ class BackEnd:
             self.status = f"capacity reached: {exc}"
             return False
         if not (settled and loops.consistent(trial, edge, total_before,
-                                             proposal=self.widened or agreed)):
-            loops.rejected_consistency += 1
-            if settled and not self.widened and loops.consistent(trial, edge, total_before,
-                                                                 proposal=True):
-                self.rise_refused[:2] = candidate, node  # refused for the rise alone
-                self.rise_refused[2:] = z
-            return False
-        if agreed:
-            loops.agreed += 1
+                                             proposal=self.widened)):
+            absorbed = settled and loops.consistent(trial, edge, total_before, proposal=True)
+            if not (agreed and absorbed):
+                loops.rejected_consistency += 1
+                if absorbed and not self.widened:  # refused for the rise alone
+                    self.rise_refused[:2] = candidate, node
+                    self.rise_refused[2:] = z
+                return False
+            loops.agreed += 1  # kept past the rise by agreeing with the one refused
         self.rise_refused[:2] = -1.0
         if self.edges_full():  # the front end took the last edges meanwhile
             return False
