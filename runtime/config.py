@@ -332,12 +332,6 @@ class FrontEndConfig(Section):
         0.6, "rad: after odometry's reading came again unchanged (stale), a lost match is "
         "sought again this far either side in heading (a robot may have turned in place "
         "meanwhile)", gt=0, le=math.pi)
-    standing_fit: float = _setting(
-        0.9, "a scan whose odometry reading came again unchanged (stale) is taken as standing "
-        "still, and not matched, when this share of its points lies on the last matched scan's "
-        "surfaces with no motion between them (docs/method.md §6.1); above 1: never", ge=0)
-    standing_distance: float = _setting(
-        0.05, "m: the band (plus track_inlier_slope per m of range) of standing_fit", gt=0)
     window_margin: float = _setting(
         0.05, "a match within this share of its search box's edge found no optimum inside the "
         "box: tracking is lost", ge=0, lt=1)
@@ -883,10 +877,9 @@ EXPERT_FIELDS = frozenset({
     "front_end.stale_turn_window", "front_end.degenerate_information",
     "front_end.odometry_gate_share", "front_end.odometry_gate_fit",
     "front_end.odometry_gate_explained", "front_end.odometry_gate_distance",
-    "front_end.previous_scan_gain", "front_end.previous_scan_fit", "front_end.standing_fit",
+    "front_end.previous_scan_gain", "front_end.previous_scan_fit",
     "loop_closure.agreement_nodes", "loop_closure.agreement_distance",
     "loop_closure.agreement_angle",
-    "front_end.standing_distance",
     "matcher.surface_bend", "matcher.surface_gap_ratio", "matcher.coarse_radius",
     "matcher.polish_step", "matcher.polish_halvings", "matcher.polish_evaluations",
     "matcher.grid_cells", "matcher.occupied_radius", "matcher.robot_diameter",

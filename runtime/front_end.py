@@ -28,7 +28,6 @@ from swarmslam.runtime.pose_graph import ODOMETRY, PoseGraph, information_from_s
 from swarmslam.runtime.scan import PointScan
 from swarmslam.runtime.scan_matcher import ScanMatcher
 
-NO_MOTION = np.zeros(3)
 CAPACITY_STATUS = "capacity reached: localising against the last node, map frozen"
 TRAJECTORY_STATUS = "trajectory capacity reached: poses no longer recorded"
 
@@ -47,7 +46,7 @@ class Tracking:
     pose: np.ndarray  # the scan's pose in the map frame
     node_added: bool
     node: int  # the keyframe after this scan (the new node if one was added)
-    error: float  # λ of the alignment (0 for the first scan and a scan taken standing still)
+    error: float  # λ of the alignment (0 for the first scan)
 
 
 def contradicts_odometry(pose, guess, step, config: FrontEndConfig,
@@ -130,7 +129,6 @@ class FrontEnd:
         self._previous_field = self.matcher.new_field()
         self._previous_built = False
         self.disowned_matches = 0  # matches the previous scan called lost
-        self.standing_scans = 0  # scans not matched: odometry and the previous scan stood still
         self.status = "ok"
         self.evaluations = 0  # by the last match (what a viewer plots)
 
@@ -143,11 +141,6 @@ class FrontEnd:
             return Tracking(self.graph.poses[0].copy(), True, 0, 0.0)
         base, step, news = self._prediction(odometry)
         self.stale = odometry is not None and not news  # the same reading as before
-        if self.stale and self._standing(scan):
-            self.standing_scans += 1
-            self.motion[:] = 0.0
-            self._record(stamp)  # (the previous scan stays the last one matched)
-            return Tracking(self.pose(), False, self.keyframe, 0.0)
         guess = compose(base, step)
         match = self.matcher.align_scans(scan, self.reference, guess)  # Alg. 5
         self.evaluations = match.evaluations
@@ -352,23 +345,6 @@ class FrontEnd:
             self.disowned_matches += 1
             return True
         return False
-
-    def _standing(self, scan: PointScan) -> bool:
-        """Odometry's reading came again unchanged and the scan lies where the last one matched
-        did: at least ``standing_fit`` of its points within ``standing_distance`` (plus the
-        slope) of that scan's surfaces with no motion between them. The robot stands, and its
-        pose is the last one; the swarm is not run (docs/method.md §6.1, "Standing still").
-        The last matched scan stays the comparison while the robot stands, so a slow turn the
-        test lets through at one scan cannot add up over many."""
-        c = self.config.front_end
-        if c.standing_fit > 1 or self._previous.count == 0:
-            return False
-        if not self._previous_built:
-            self.matcher.build_field(self._previous, self._previous_field)
-            self._previous_built = True
-        return self.matcher.inlier_fraction(scan, self._previous_field, NO_MOTION,
-                                            c.standing_distance,
-                                            c.track_inlier_slope) >= c.standing_fit
 
     def _remember(self, scan: PointScan) -> None:
         """Keep ``scan`` as the previous scan (at most ``sensor.max_points`` of it, as a node
