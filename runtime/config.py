@@ -380,7 +380,7 @@ class LoopClosureConfig(Section):
     agreement_distance: float = _setting(
         0.1, "m: how near the two loops of agreement_nodes must place the node", gt=0)
     agreement_angle: float = _setting(
-        0.02, "rad: and in heading", gt=0)
+        0.02, "rad: how near in heading the two loops of agreement_nodes must place it", gt=0)
     min_inliers: float = _setting(0.8, "share of points on the submap's surfaces that accepts a "
                                   "loop match (strict: a wrong loop bends the map)", ge=0, le=1)
     min_overlap: float = _setting(
