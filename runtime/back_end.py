@@ -385,17 +385,17 @@ class BackEnd:
         trial.copy_from(g)
         n, m = g.n_nodes, g.n_edges
         edge = trial.add_edge(candidate, node, z, self.z_info, LOOP)
-        agreed = self._agrees(candidate, node, z)  # (the graph's poses before the trial)
         try:  # on trial: judged at its full weight; one Gauss–Newton does not absorb is
             # refused without the Levenberg–Marquardt restart (a deadline's worth of steps)
             settled = (yield from self.optimizer.steps(exempt=edge)).converged
         except FactorCapacityError as exc:  # the graph as it was; localising goes on
             self.status = f"capacity reached: {exc}"
             return False
-        if not (settled and loops.consistent(trial, edge, total_before,
-                                             proposal=self.widened)):
-            absorbed = settled and loops.consistent(trial, edge, total_before, proposal=True)
-            if not (agreed and absorbed):
+        absorbed, contained = (loops.verdicts(trial, edge, total_before) if settled
+                               else (False, False))
+        if not (absorbed and (contained or self.widened)):
+            # (the graph's own poses: the trial moved none, the front end only adds nodes)
+            if not (absorbed and self._agrees(candidate, node, z)):
                 loops.rejected_consistency += 1
                 if absorbed and not self.widened:  # refused for the rise alone
                     self.rise_refused[:2] = candidate, node

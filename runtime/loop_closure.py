@@ -190,15 +190,19 @@ class LoopCloser:
                          max(c.max_search_window[d], c.search_window[d]))
         return out
 
-    def consistent(self, graph, edge: int, total_before: float, proposal: bool = False) -> bool:
-        """Step 4's test, after optimising with the new edge; a wide search's ``proposal`` is
-        judged by its own error alone: the rise of the total measures the drift it repairs
-        (docs/method.md §5, step 4)."""
+    def verdicts(self, graph, edge: int, total_before: float) -> tuple[bool, bool]:
+        """Step 4's two tests, after optimising with the new edge: its own error is within
+        ``chi2_gate`` (the graph absorbed it), and the total rose by at most ``total_gate``."""
         c = self.config
         chi2 = graph.edge_chi2()
-        own = float(chi2[edge])
-        rise = float(np.sum(chi2)) - total_before
-        return own <= c.chi2_gate and (proposal or rise <= c.total_gate)
+        return (float(chi2[edge]) <= c.chi2_gate,
+                float(np.sum(chi2)) - total_before <= c.total_gate)
+
+    def consistent(self, graph, edge: int, total_before: float, proposal: bool = False) -> bool:
+        """Step 4's test; a wide search's ``proposal`` is judged by its own error alone: the
+        rise of the total measures the drift it repairs (docs/method.md §5, step 4)."""
+        absorbed, contained = self.verdicts(graph, edge, total_before)
+        return absorbed and (proposal or contained)
 
 
 def relative_guess(graph, i: int, j: int) -> np.ndarray:
