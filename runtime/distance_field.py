@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 # Layout of the ``meta`` array describing the used part of a grid.
@@ -99,6 +100,20 @@ def continues_line(pts, p, n, cos_bend, gap_ratio):
             and vx * wx + vy * wy >= cos_bend * lv * lw)
 
 
+@njit(cache=True, inline="always")
+def surface_end(pts, p, n, gap2, bend, cos_bend, gap_ratio):
+    """The other end of the surface drawn from point ``p``: ``p + 1`` when the two are joined
+    (closer than the gap, or continuing the line: :func:`continues_line`), else ``p`` itself
+    (a lone point)."""
+    if p + 1 < n:
+        dx = pts[p + 1, 0] - pts[p, 0]
+        dy = pts[p + 1, 1] - pts[p, 1]
+        if dx * dx + dy * dy < gap2 or (bend > 0.0 and continues_line(pts, p, n, cos_bend,
+                                                                      gap_ratio)):
+            return p + 1
+    return p
+
+
 @njit(cache=True)
 def build_distance_field(pts, n, res, radius, max_gap, inv_c2, field, meta, bend=0.0,
                          gap_ratio=2.0):
@@ -125,18 +140,9 @@ def build_distance_field(pts, n, res, radius, max_gap, inv_c2, field, meta, bend
     gap2 = max_gap * max_gap
     cos_bend = math.cos(bend)
     for p in range(n):
-        ax = pts[p, 0]
-        ay = pts[p, 1]
-        bx = ax
-        by = ay
-        if p + 1 < n:
-            dx = pts[p + 1, 0] - ax
-            dy = pts[p + 1, 1] - ay
-            if dx * dx + dy * dy < gap2 or (bend > 0.0 and continues_line(pts, p, n, cos_bend,
-                                                                          gap_ratio)):
-                bx = pts[p + 1, 0]
-                by = pts[p + 1, 1]
-        splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field)
+        b = surface_end(pts, p, n, gap2, bend, cos_bend, gap_ratio)
+        splat_segment(pts[p, 0], pts[p, 1], pts[b, 0], pts[b, 1], ox, oy, res, radius, nx, ny,
+                      field)
     if inv_c2 > 0.0:
         far = math.log1p(r2 * inv_c2)
         meta[R2] = far
@@ -145,6 +151,17 @@ def build_distance_field(pts, n, res, radius, max_gap, inv_c2, field, meta, bend
                 v = field[i, j]
                 # Most cells are beyond the radius: one constant, no logarithm.
                 field[i, j] = math.log1p(v * inv_c2) if v < r2 else far
+
+
+@njit(cache=True, inline="always")
+def segment_box(ax, ay, bx, by, ox, oy, res, radius, nx, ny):
+    """Rows ``i0…i1`` and columns ``j0…j1`` of the nodes within ``radius`` of segment a–b
+    (cut to the window's ``nx × ny``; empty when ``j1 < j0`` or ``i1 < i0``)."""
+    j0 = max(int(math.floor((min(ax, bx) - radius - ox) / res)), 0)
+    j1 = min(int(math.ceil((max(ax, bx) + radius - ox) / res)), nx - 1)
+    i0 = max(int(math.floor((min(ay, by) - radius - oy) / res)), 0)
+    i1 = min(int(math.ceil((max(ay, by) + radius - oy) / res)), ny - 1)
+    return i0, i1, j0, j1
 
 
 @njit(cache=True)
@@ -158,10 +175,7 @@ def splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field):
     ux = bx - ax
     uy = by - ay
     uu = ux * ux + uy * uy
-    j0 = max(int(math.floor((min(ax, bx) - radius - ox) / res)), 0)
-    j1 = min(int(math.ceil((max(ax, bx) + radius - ox) / res)), nx - 1)
-    i0 = max(int(math.floor((min(ay, by) - radius - oy) / res)), 0)
-    i1 = min(int(math.ceil((max(ay, by) + radius - oy) / res)), ny - 1)
+    i0, i1, j0, j1 = segment_box(ax, ay, bx, by, ox, oy, res, radius, nx, ny)
     if j1 < j0:
         return
     m = j1 - j0 + 1
@@ -195,12 +209,14 @@ def lookup_grid(field, gx, gy, last_x, last_y, far):
     i = int(math.floor(gy))
     if j < 0 or i < 0 or j >= last_x or i >= last_y:
         return far
-    fx = gx - j
-    fy = gy - i
-    a = field[i, j]
-    b = field[i, j + 1]
-    c = field[i + 1, j]
-    d = field[i + 1, j + 1]
+    return bilinear(field[i, j], field[i, j + 1], field[i + 1, j], field[i + 1, j + 1], gx - j,
+                    gy - i)
+
+
+@njit(cache=True, inline="always")
+def bilinear(a, b, c, d, fx, fy):
+    """The cost at ``(fx, fy)`` inside a cell whose nodes hold ``a`` (its own), ``b`` (the next
+    column), ``c`` (the next row) and ``d``."""
     return a + (b - a) * fx + (c - a) * fy + (a - b - c + d) * fx * fy
 
 
@@ -210,3 +226,135 @@ def field_lookup(field, meta, x, y):
     gx = (x - meta[OX]) * meta[INV_RES]
     gy = (y - meta[OY]) * meta[INV_RES]
     return lookup_grid(field, gx, gy, int(meta[NX]) - 1, int(meta[NY]) - 1, meta[R2])
+
+
+# A surface list's rows: a segment's ends and the box of nodes it lowers (see segment_box).
+SAX, SAY, SBX, SBY, SI0, SI1, SJ0, SJ1 = 0, 1, 2, 3, 4, 5, 6, 7
+N_SURFACE = 8
+# Its index: square tiles of nodes, each a linked list of the segments whose box, widened by a
+# node down and left, meets it; so the tile of a cell's first node lists every segment that
+# lowers one of the cell's four. TILE_SIDE, TILES_X, INDEXED: ``tiling``'s entries.
+TILE_SIDE, TILES_X, INDEXED = 0, 1, 2
+
+
+@njit(cache=True)
+def list_surfaces(pts, n, res, radius, max_gap, inv_c2, cap_x, cap_y, meta, surfaces, tiling,
+                  heads, links, bend=0.0, gap_ratio=2.0):
+    """The segments :func:`build_distance_field` would splat for ``pts[:n]`` into a
+    ``cap_y × cap_x`` field, each with its box of nodes, into ``surfaces`` (a row each, see
+    ``SAX…SJ1``); ``meta`` as that field's. Returns how many.
+
+    A field read at one scan's points a few times costs less from this list than built: a
+    node's value is the least over the segments whose box holds it, by the same arithmetic
+    (:func:`cell_costs`), where building writes the whole window twice. The segments are
+    indexed by tiles of ``tiling[TILE_SIDE]`` nodes (``heads``: a tile's first entry, −1 for
+    none; ``links``: an entry's segment and the next entry); with more entries than
+    ``links`` holds, ``tiling[INDEXED]`` is 0 and a look-up reads every segment."""
+    fit_window(pts, n, res, radius, cap_x, cap_y, meta)
+    r2 = radius * radius
+    meta[R2] = math.log1p(r2 * inv_c2) if inv_c2 > 0.0 else r2
+    nx = int(meta[NX])
+    ny = int(meta[NY])
+    ox = meta[OX]
+    oy = meta[OY]
+    side = tiling[TILE_SIDE]
+    tiles_x = (nx + side - 1) // side
+    tiling[TILES_X] = tiles_x
+    for k in range(tiles_x * ((ny + side - 1) // side)):
+        heads[k] = -1
+    gap2 = max_gap * max_gap
+    cos_bend = math.cos(bend)
+    count = 0
+    used = 0
+    indexed = True
+    for p in range(n):
+        b = surface_end(pts, p, n, gap2, bend, cos_bend, gap_ratio)
+        ax, ay, bx, by = pts[p, 0], pts[p, 1], pts[b, 0], pts[b, 1]
+        i0, i1, j0, j1 = segment_box(ax, ay, bx, by, ox, oy, res, radius, nx, ny)
+        if j1 < j0 or i1 < i0:
+            continue  # no node of the window within reach: the splat writes nothing
+        row = surfaces[count]
+        row[SAX], row[SAY], row[SBX], row[SBY] = ax, ay, bx, by
+        row[SI0], row[SI1], row[SJ0], row[SJ1] = i0, i1, j0, j1
+        t0, t1 = max(i0 - 1, 0) // side, i1 // side
+        u0, u1 = max(j0 - 1, 0) // side, j1 // side
+        if used + (t1 - t0 + 1) * (u1 - u0 + 1) > len(links):
+            indexed = False
+        if indexed:
+            for ti in range(t0, t1 + 1):
+                for tj in range(u0, u1 + 1):
+                    tile = ti * tiles_x + tj
+                    links[used, 0] = count
+                    links[used, 1] = heads[tile]
+                    heads[tile] = used
+                    used += 1
+        count += 1
+    tiling[INDEXED] = 1 if indexed else 0
+    return count
+
+
+@njit(cache=True, inline="always")
+def _lowered(v, ax, ay, ux, uy, uu, cx, cy):
+    """``v`` lowered to the squared distance of node (cx, cy) from segment a–(a + u), as
+    :func:`splat_segment` computes and stores it (float32)."""
+    if uu > 0.0:
+        t = ((cx - ax) * ux + (cy - ay) * uy) / uu
+        t = 0.0 if t < 0.0 else (1.0 if t > 1.0 else t)
+        dx = ax + t * ux - cx
+        dy = ay + t * uy - cy
+    else:
+        dx = ax - cx
+        dy = ay - cy
+    d2 = dx * dx + dy * dy
+    return np.float32(d2) if d2 < v else v
+
+
+@njit(cache=True, inline="always")
+def _kernel(v, r2, inv_c2):
+    """A node's stored value after :func:`build_distance_field`'s kernel pass."""
+    if inv_c2 > 0.0:
+        return np.float32(math.log1p(v * inv_c2) if v < r2 else math.log1p(r2 * inv_c2))
+    return v
+
+
+@njit(cache=True)
+def cell_costs(surfaces, count, tiling, heads, links, meta, radius, inv_c2, i, j):
+    """The four nodes of cell (``i``, ``j``) — its own, the next column's, the next row's and
+    the diagonal one's — as :func:`build_distance_field` would store them, from a surface
+    list (:func:`list_surfaces`)."""
+    ox, oy, res = meta[OX], meta[OY], meta[RES]
+    r2 = radius * radius
+    a = b = c = d = np.float32(r2)
+    x0, x1 = ox + j * res, ox + (j + 1) * res
+    y0, y1 = oy + i * res, oy + (i + 1) * res
+    side = tiling[TILE_SIDE]
+    e = heads[(i // side) * tiling[TILES_X] + j // side] if tiling[INDEXED] else -1
+    k = -1
+    while True:  # the tile's entries, or every segment: count or fewer passes
+        if tiling[INDEXED]:
+            if e < 0:
+                break
+            k = links[e, 0]
+            e = links[e, 1]
+        else:
+            if k + 1 >= count:
+                break
+            k += 1
+        row = surfaces[k]
+        if i + 1 < row[SI0] or i > row[SI1] or j + 1 < row[SJ0] or j > row[SJ1]:
+            continue
+        ax, ay = row[SAX], row[SAY]
+        ux, uy = row[SBX] - ax, row[SBY] - ay
+        uu = ux * ux + uy * uy
+        in_i0, in_i1 = row[SI0] <= i, i + 1 <= row[SI1]
+        in_j0, in_j1 = row[SJ0] <= j, j + 1 <= row[SJ1]
+        if in_i0 and in_j0:
+            a = _lowered(a, ax, ay, ux, uy, uu, x0, y0)
+        if in_i0 and in_j1:
+            b = _lowered(b, ax, ay, ux, uy, uu, x1, y0)
+        if in_i1 and in_j0:
+            c = _lowered(c, ax, ay, ux, uy, uu, x0, y1)
+        if in_i1 and in_j1:
+            d = _lowered(d, ax, ay, ux, uy, uu, x1, y1)
+    return (_kernel(a, r2, inv_c2), _kernel(b, r2, inv_c2), _kernel(c, r2, inv_c2),
+            _kernel(d, r2, inv_c2))

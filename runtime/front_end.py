@@ -122,11 +122,12 @@ class FrontEnd:
         self.rescued_matches = 0  # lost matches found again around the scans' own motion
         self.degenerate_matches = 0  # matches held to the prediction along a direction
         self.degeneracy = None  # the last match's (swarmslam.runtime.degeneracy), when measured
-        # The scan tracked last, and its fine field once a match was checked against it: it
-        # holds each wall once where the keyframe's submap may hold one twice (docs/method.md
-        # §6.1, "The previous scan").
+        # The scan tracked last, and its surfaces listed once a match was checked against it:
+        # it holds each wall once where the keyframe's submap may hold one twice
+        # (docs/method.md §6.1, "The previous scan"). Listed, not rendered: two matches are
+        # read against it, and rendering its field cost a tenth of a replay.
         self._previous = PointScan(points)
-        self._previous_field = self.matcher.new_field()
+        self._previous_surfaces = self.matcher.new_surfaces(points)
         self._previous_built = False
         self.disowned_matches = 0  # matches the previous scan called lost
         self.status = "ok"
@@ -335,11 +336,11 @@ class FrontEnd:
         if self.stale or c.previous_scan_gain >= 1 or self._previous.count == 0:
             return False  # a stale reading predicts nothing to vouch for
         if not self._previous_built:
-            self.matcher.build_field(self._previous, self._previous_field)
+            self.matcher.list_surfaces(self._previous, self._previous_surfaces)
             self._previous_built = True
         # (the previous scan's pose in the keyframe's frame is self.rel until this scan's is set)
-        predicted, fit = (self.matcher.inlier_fraction(
-            scan, self._previous_field, between(p, self.rel), c.track_inlier_distance,
+        predicted, fit = (self.matcher.surface_inlier_fraction(
+            scan, self._previous_surfaces, between(p, self.rel), c.track_inlier_distance,
             c.track_inlier_slope) for p in (guess, pose))
         if predicted >= c.previous_scan_fit and predicted - fit > c.previous_scan_gain:
             self.disowned_matches += 1

@@ -13,10 +13,12 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 from swarmslam.runtime.config import KERNEL_NAMES
-from swarmslam.runtime.distance_field import INV_RES, NX, NY, OX, OY, R2, lookup_grid
+from swarmslam.runtime.distance_field import (INV_RES, NX, NY, OX, OY, R2, bilinear,
+                                               cell_costs, lookup_grid)
 from swarmslam.runtime.local_map import UNKNOWN
 
 KERNEL_PAPER = KERNEL_NAMES.index("paper")
@@ -101,11 +103,47 @@ def inlier_fraction(field, meta, pts, n, x, y, t, distance, slope, inv_c2):
     for i in range(n):
         gx = gx0 + c * pts[i, 0] - s * pts[i, 1]
         gy = gy0 + s * pts[i, 0] + c * pts[i, 1]
-        d = distance + slope * math.hypot(pts[i, 0], pts[i, 1])
-        limit = math.log1p(d * d * inv_c2) if inv_c2 > 0 else d * d
-        if lookup_grid(field, gx, gy, last_x, last_y, far) <= limit:
+        if lookup_grid(field, gx, gy, last_x, last_y, far) <= _inlier_limit(
+                pts[i, 0], pts[i, 1], distance, slope, inv_c2):
             inliers += 1
     return inliers / n
+
+
+@njit(cache=True)
+def surface_inlier_fraction(surfaces, count, tiling, heads, links, meta, radius, pts, n, x, y,
+                            t, distance, slope, inv_c2):
+    """:func:`inlier_fraction` on the field a surface list stands for
+    (swarmslam.runtime.distance_field.list_surfaces, with the field's ``radius``): the same
+    share, to the bit, without building the field."""
+    if n == 0:
+        return 0.0
+    c, s, gx0, gy0, last_x, last_y, far = _grid_frame(meta, x, y, t)
+    inliers = 0
+    ci = cj = -1  # the cell read last: a dense scan's neighbours often share one
+    a = b = e = d = np.float32(0.0)
+    for k in range(n):
+        gx = gx0 + c * pts[k, 0] - s * pts[k, 1]
+        gy = gy0 + s * pts[k, 0] + c * pts[k, 1]
+        j = int(math.floor(gx))
+        i = int(math.floor(gy))
+        if j < 0 or i < 0 or j >= last_x or i >= last_y:
+            cost = far
+        else:
+            if i != ci or j != cj:
+                a, b, e, d = cell_costs(surfaces, count, tiling, heads, links, meta, radius,
+                                        inv_c2, i, j)
+                ci, cj = i, j
+            cost = bilinear(a, b, e, d, gx - j, gy - i)
+        if cost <= _inlier_limit(pts[k, 0], pts[k, 1], distance, slope, inv_c2):
+            inliers += 1
+    return inliers / n
+
+
+@njit(cache=True, inline="always")
+def _inlier_limit(px, py, distance, slope, inv_c2):
+    """The cost at most of an inlier at range ``hypot(px, py)``: ``distance + slope·r`` away."""
+    d = distance + slope * math.hypot(px, py)
+    return math.log1p(d * d * inv_c2) if inv_c2 > 0 else d * d
 
 
 @njit(cache=True, inline="always")

@@ -20,7 +20,8 @@ import numpy as np
 from numba import njit
 
 from swarmslam.runtime.config import MatcherConfig
-from swarmslam.runtime.distance_field import N_META, build_distance_field
+from swarmslam.runtime.distance_field import (N_META, N_SURFACE, build_distance_field,
+                                               list_surfaces)
 from swarmslam.runtime.local_map import build_local_map, robot_square
 from swarmslam.runtime.objectives import (
     KERNELS,
@@ -28,6 +29,7 @@ from swarmslam.runtime.objectives import (
     inlier_fraction,
     scan_to_map_cost,
     scan_to_scan_error,
+    surface_inlier_fraction,
 )
 from swarmslam.runtime.optimizers import SwarmOptimizer, ask, start, tell
 from swarmslam.runtime.optimizers.workspace import BEST_VAL, EVALUATIONS, ITERATION, reset_run
@@ -79,6 +81,29 @@ class ReferenceMaps:
         self.grid = np.zeros((grid_cells, grid_cells), dtype=np.uint8)
         self.meta = np.zeros(N_META, dtype=np.float64)
         self.ready = False
+
+
+class SurfaceList:
+    """A reference scan's surfaces as the fine field would be built from them, listed and
+    indexed by tiles, not rendered: enough to read that field at one scan's points a few
+    times (:meth:`ScanMatcher.surface_inlier_fraction`)."""
+
+    # Tile entries held per point: a segment's box of nodes, a field radius either way of
+    # it, meets 9–16 tiles of a radius' side unless it is long; more falls back to reading
+    # every segment (slower, the same values).
+    ENTRIES_PER_POINT = 40
+
+    def __init__(self, capacity: int, config: MatcherConfig):
+        """``capacity``: the most points of a scan listed (a segment each at most)."""
+        capacity = max(capacity, 1)
+        side = max(int(math.ceil(0.5 * config.field_radius / config.resolution)), 1)
+        tiles = -(-config.grid_cells // side)
+        self.surfaces = np.zeros((capacity, N_SURFACE), dtype=np.float64)
+        self.tiling = np.array([side, 0, 0], dtype=np.int64)  # see distance_field.TILE_SIDE
+        self.heads = np.zeros(tiles * tiles, dtype=np.int64)
+        self.links = np.zeros((self.ENTRIES_PER_POINT * capacity, 2), dtype=np.int64)
+        self.meta = np.zeros(N_META, dtype=np.float64)
+        self.count = 0
 
 
 @dataclass(frozen=True)
@@ -335,9 +360,22 @@ class ScanMatcher:
             coarse = int(np.ceil(c.grid_cells * c.resolution / c.coarse_resolution))
         return ReferenceMaps(c.grid_cells, coarse)
 
-    def new_field(self) -> ReferenceMaps:
-        """A buffer for :meth:`build_field` alone: the fine field, no coarse field or grid."""
-        return ReferenceMaps(self.config.grid_cells, 1, grid_cells=1)
+    def new_surfaces(self, capacity: int) -> SurfaceList:
+        """A surface list for scans of up to ``capacity`` points (allocate at start-up)."""
+        return SurfaceList(capacity, self.config)
+
+    def list_surfaces(self, scan: PointScan, out: SurfaceList) -> None:
+        """List ``scan``'s surfaces as :meth:`build_field` would render them, into ``out``
+        (capacity at least ``scan.count``)."""
+        if scan.count > len(out.surfaces):
+            raise ValueError(f"{scan.count} points exceed the surface list's capacity "
+                             f"{len(out.surfaces)}")
+        c = self.config
+        cells = c.grid_cells
+        out.count = list_surfaces(scan.buffer, scan.count, c.resolution, c.field_radius,
+                                  c.max_gap, self._inv_c2(), cells, cells, out.meta,
+                                  out.surfaces, out.tiling, out.heads, out.links,
+                                  c.surface_bend, c.surface_gap_ratio)
 
     def build_reference(self, scan: PointScan, out: ReferenceMaps | None = None) -> ReferenceMaps:
         """Render a reference scan's distance field (Eq. 14) and local grid (Eq. 16)."""
@@ -464,3 +502,13 @@ class ScanMatcher:
         return float(inlier_fraction(reference.field, reference.meta, scan.buffer, scan.count,
                                      float(pose[0]), float(pose[1]), float(pose[2]),
                                      float(distance), float(slope), self._inv_c2()))
+
+    def surface_inlier_fraction(self, scan: PointScan, surfaces: SurfaceList, pose,
+                                distance: float, slope: float = 0.0) -> float:
+        """:meth:`inlier_fraction` against a listed reference (:meth:`list_surfaces`): the
+        same share, without building its field."""
+        return float(surface_inlier_fraction(
+            surfaces.surfaces, surfaces.count, surfaces.tiling, surfaces.heads, surfaces.links,
+            surfaces.meta, self.config.field_radius,
+            scan.buffer, scan.count, float(pose[0]), float(pose[1]), float(pose[2]),
+            float(distance), float(slope), self._inv_c2()))

@@ -3,8 +3,9 @@
 import numpy as np
 from scipy.spatial import cKDTree
 
-from swarmslam.runtime.distance_field import (N_META, NX, NY, build_distance_field, field_lookup,
-                                               splat_segment)
+from swarmslam.runtime.distance_field import (INDEXED, N_META, N_SURFACE, NX, NY,
+                                               build_distance_field, cell_costs, field_lookup,
+                                               list_surfaces, splat_segment)
 
 
 def build(points, res=0.05, radius=0.5, gap=0.0, cells=512, inv_c2=0.0, bend=0.0,
@@ -120,3 +121,56 @@ def test_cauchy_kernel_baked_into_field():
     for q in [(0.2, 0.0), (0.0, 0.35), (1.5, 0.0), (50.0, 0.0)]:
         d2 = field_lookup(plain, m0, *q)
         assert np.isclose(field_lookup(cauchy, m1, *q), np.log1p(100.0 * d2), rtol=0.05)
+
+
+def listed(points, res=0.05, radius=0.5, gap=1.0, cells=512, inv_c2=0.0, bend=0.0,
+           side=10, links=None):
+    surfaces = np.zeros((len(points), N_SURFACE))
+    tiling = np.array([side, 0, 0])
+    heads = np.zeros((-(-cells // side)) ** 2, np.int64)
+    links = np.zeros((100 * len(points) if links is None else links, 2), np.int64)
+    meta = np.zeros(N_META)
+    count = list_surfaces(points, len(points), res, radius, gap, inv_c2, cells, cells, meta,
+                          surfaces, tiling, heads, links, bend, 2.0)
+    return (surfaces, count, tiling, heads, links, meta)
+
+
+def cells_read_wrong(surface_list, radius, inv_c2, field):
+    """How many cells' four nodes, read from the list, differ from the built field's."""
+    surfaces, count, tiling, heads, links, meta = surface_list
+    nx, ny = int(meta[NX]), int(meta[NY])
+    wrong = 0
+    for i in range(ny - 1):
+        for j in range(nx - 1):
+            got = cell_costs(surfaces, count, tiling, heads, links, meta, radius, inv_c2, i, j)
+            wrong += not np.array_equal(np.reshape(got, (2, 2)), field[i:i + 2, j:j + 2])
+    return wrong
+
+
+def test_a_listed_field_reads_every_node_as_the_built_field_holds_it():
+    # to the bit: a room and clutter, both kernels, a window cut to its capacity, tiles of
+    # several sides and an index too small to hold every segment (every segment read)
+    rng = np.random.default_rng(11)
+    cases = [dict(), dict(inv_c2=1 / 0.07 ** 2), dict(cells=64, inv_c2=1 / 0.07 ** 2),
+             dict(side=3, bend=np.radians(3.0)), dict(links=5, inv_c2=1 / 0.07 ** 2),
+             dict(radius=0.3, res=0.037, side=7)]
+    for case in cases:
+        pts = np.r_[noisy_room(rng, beams=300), rng.uniform(-3, 3, (40, 2))]
+        field, meta = build(pts, gap=1.0, cells=case.get("cells", 512),
+                            inv_c2=case.get("inv_c2", 0.0), bend=case.get("bend", 0.0),
+                            res=case.get("res", 0.05), radius=case.get("radius", 0.5))
+        surface_list = listed(pts, **case)
+        assert np.array_equal(surface_list[-1], meta), case
+        assert surface_list[2][INDEXED] == (0 if case.get("links") else 1), case
+        assert cells_read_wrong(surface_list, case.get("radius", 0.5), case.get("inv_c2", 0.0),
+                                field) == 0, case
+
+
+def noisy_room(rng, beams=720, noise=0.01):
+    """A scan of a 6 × 4 m room around the sensor, with range noise, in beam order."""
+    bearing = np.linspace(-np.pi, np.pi, beams, endpoint=False)
+    c, s = np.cos(bearing), np.sin(bearing)
+    with np.errstate(divide="ignore"):
+        r = np.minimum(np.abs(3.0 / c), np.abs(2.0 / s))
+    r = r + rng.normal(0.0, noise, beams)
+    return np.c_[r * c, r * s]
