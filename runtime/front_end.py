@@ -125,7 +125,7 @@ class FrontEnd:
         # The scan tracked last, and its surfaces listed once a match was checked against it:
         # it holds each wall once where the keyframe's submap may hold one twice
         # (docs/method.md §6.1, "The previous scan"). Listed, not rendered: two matches are
-        # read against it, and rendering its field cost a tenth of a replay.
+        # read against it, and rendering its field cost up to a tenth of a replay (fr-clinic).
         self._previous = PointScan(points)
         self._previous_surfaces = self.matcher.new_surfaces(points)
         self._previous_built = False

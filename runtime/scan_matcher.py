@@ -88,9 +88,9 @@ class SurfaceList:
     indexed by tiles, not rendered: enough to read that field at one scan's points a few
     times (:meth:`ScanMatcher.surface_inlier_fraction`)."""
 
-    # Tile entries held per point: a segment's box of nodes, a field radius either way of
-    # it, meets 9–16 tiles of a radius' side unless it is long; more falls back to reading
-    # every segment (slower, the same values).
+    # Tile entries held per point: tiles are half a field radius a side, so a short
+    # segment's box of nodes (a radius either way of it) meets 25–36 of them; a list that
+    # needs more falls back to reading every segment (slower, the same values).
     ENTRIES_PER_POINT = 40
 
     def __init__(self, capacity: int, config: MatcherConfig):
