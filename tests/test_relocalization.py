@@ -299,8 +299,8 @@ def test_place_map_scores_the_true_pose_near_one(room):
     assert place.score(q.points, q.count, path[7] + [1.0, 0.0, 0.5]) < 0.5
 
 
-def test_bench_localize_maps_again_when_the_mapping_defaults_changed(tmp_path):
-    from swarmslam.bench.localize import MADE_BY, mapping_session
+def test_bench_localize_maps_again_when_the_mapping_defaults_or_code_changed(tmp_path):
+    from swarmslam.bench.localize import MADE_BY, MADE_BY_CODE, mapping_code, mapping_session
     from swarmslam.simlog import write_simlog
 
     log = tmp_path / "hall.clf"
@@ -318,6 +318,14 @@ def test_bench_localize_maps_again_when_the_mapping_defaults_changed(tmp_path):
     (session.parent / MADE_BY).write_text("[front_end]\nsubmap_nodes = 1\n")  # other defaults
     mapping_session("hall", log, tmp_path / "maps", echo=said.append)
     assert "other defaults" in said[-1] and session.stat().st_mtime_ns != made
+    # today's defaults, other code (a field added since reads as today's default): made again
+    made, heard = session.stat().st_mtime_ns, len(said)
+    assert mapping_session("hall", log, tmp_path / "maps", echo=said.append) == session
+    assert session.stat().st_mtime_ns == made and len(said) == heard
+    (session.parent / MADE_BY_CODE).write_text("0" * 64 + "\n")
+    mapping_session("hall", log, tmp_path / "maps", echo=said.append)
+    assert "other defaults or code" in said[-1] and session.stat().st_mtime_ns != made
+    assert (session.parent / MADE_BY_CODE).read_text().strip() == mapping_code()
 
 
 def test_bench_localize_maps_a_log_and_scores_its_queries(tmp_path):

@@ -21,6 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
+import swarmslam.carmen
+import swarmslam.replay
+import swarmslam.runtime
 from swarmslam.runtime.config import (
     SESSION_SECTIONS,
     ConfigError,
@@ -58,6 +61,7 @@ def judge(answer, truth) -> str:
 
 
 MADE_BY = "made-by.toml"  # beside a kept session: the defaults its mapping run had
+MADE_BY_CODE = "made-by.code"  # ... and the digest of the code that ran it (mapping_code)
 
 
 def todays_search() -> dict:
@@ -66,31 +70,48 @@ def todays_search() -> dict:
     return session_settings(SlamConfig())
 
 
+def mapping_code() -> str:
+    """A digest of the code a mapping replay runs: the SLAM core's sources, the log reader's
+    and the replay's. A field added to the configuration reads an older file with today's
+    default, so the defaults alone cannot tell a map made before the field existed."""
+    digest = hashlib.sha256()
+    core = Path(swarmslam.runtime.__file__).parent
+    sources = sorted(core.rglob("*.py")) + [Path(swarmslam.carmen.__file__),
+                                            Path(swarmslam.replay.__file__)]
+    for path in sources:
+        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    return digest.hexdigest()
+
+
 def _mapped_as_today(made_by: Path) -> bool:
     """Whether the defaults written in ``made_by`` map as today's do (the sections of the
-    search and tracking aside: :func:`todays_search` replaces them)."""
+    search and tracking aside: :func:`todays_search` replaces them), by today's code."""
     try:
         kept = from_toml(made_by.read_text(encoding="utf-8"), source=str(made_by))
+        code = (made_by.parent / MADE_BY_CODE).read_text(encoding="utf-8").strip()
     except (OSError, ConfigError):
         return False
     today = SlamConfig()
-    return replace(kept, **{t: getattr(today, t) for t in SESSION_SECTIONS}) == today
+    same = replace(kept, **{t: getattr(today, t) for t in SESSION_SECTIONS}) == today
+    return same and code == mapping_code()
 
 
 def mapping_session(name: str, log_path: Path, maps_dir: Path, echo=print) -> Path:
     """The session of the whole log's mapping run, made once per ``maps_dir`` and made again
-    when the mapping defaults have changed since (a kept map of other defaults would be
-    scored as today's without a word)."""
+    when the mapping defaults or the code have changed since (a kept map of other defaults
+    would be scored as today's without a word)."""
     out = Path(maps_dir) / name
     session, made_by = out / "session.npz", out / MADE_BY
     if session.exists() and made_by.exists() and _mapped_as_today(made_by):
         return session
     if session.exists():
-        echo(f"{name}: the map kept in {out} was made with other defaults: mapping again")
+        echo(f"{name}: the map kept in {out} was made with other defaults or code: mapping "
+             "again")
     else:
         echo(f"{name}: mapping the whole log first (kept in {out})")
     replay(log_path, out_dir=out, label=f"{name} mapping")
     write_text_atomic(made_by, to_toml(SlamConfig(), comments=False))
+    write_text_atomic(out / MADE_BY_CODE, mapping_code() + "\n")
     return session
 
 
