@@ -772,8 +772,8 @@ def build_parser() -> argparse.ArgumentParser:
     lo.add_argument("--queries", type=_at_least_one, default=200, help="scans relocalized per log")
     lo.add_argument("--seed", type=int, default=0, help="seeds which scans are drawn")
     lo.add_argument("--maps", metavar="DIR", help="where the mapping runs are kept and reused "
-                                                  "while the defaults are the same (default: "
-                                                  "./swarmslam-maps)")
+                                                  "while the defaults and the code are the same "
+                                                  "(default: ./swarmslam-maps)")
     _bench_outputs(lo)
     lo.set_defaults(func=_bench_localize)
     pg = bsub.add_parser("posegraph", help="Gauss-Newton on the g2o benchmark graphs")

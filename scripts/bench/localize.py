@@ -1,8 +1,9 @@
 """``swarmslam bench localize``: global relocalization on the Intel, ACES3 and fr-clinic logs.
 
 Per log: the map of the whole log (a mapping replay, ABC with odometry, seed 0; its session is
-kept in ``maps_dir`` and reused while the defaults it was mapped with are today's; the search
-and tracking always run with today's :data:`swarmslam.runtime.config.SESSION_SECTIONS`), then single
+kept in ``maps_dir`` and reused while the defaults and the code it was mapped with are today's;
+the search and tracking always run with today's
+:data:`swarmslam.runtime.config.SESSION_SECTIONS`), then single
 scans drawn at seeded random times are relocalized with no prior. An answer is a success within
 0.3 m and 5° of the mapping run's optimised pose of that scan, wrong otherwise; "ambiguous" is
 neither. Then the same queries confirmed: localization mode started there with no prior, its
