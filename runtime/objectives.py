@@ -103,8 +103,9 @@ def inlier_fraction(field, meta, pts, n, x, y, t, distance, slope, inv_c2):
     for i in range(n):
         gx = gx0 + c * pts[i, 0] - s * pts[i, 1]
         gy = gy0 + s * pts[i, 0] + c * pts[i, 1]
-        if lookup_grid(field, gx, gy, last_x, last_y, far) <= _inlier_limit(
-                pts[i, 0], pts[i, 1], distance, slope, inv_c2):
+        d = distance + slope * math.hypot(pts[i, 0], pts[i, 1])
+        limit = math.log1p(d * d * inv_c2) if inv_c2 > 0 else d * d
+        if lookup_grid(field, gx, gy, last_x, last_y, far) <= limit:
             inliers += 1
     return inliers / n
 
@@ -134,16 +135,10 @@ def surface_inlier_fraction(surfaces, count, tiling, heads, links, meta, radius,
                                         inv_c2, i, j)
                 ci, cj = i, j
             cost = bilinear(a, b, e, d, gx - j, gy - i)
-        if cost <= _inlier_limit(pts[k, 0], pts[k, 1], distance, slope, inv_c2):
+        limit = distance + slope * math.hypot(pts[k, 0], pts[k, 1])  # as inlier_fraction's
+        if cost <= (math.log1p(limit * limit * inv_c2) if inv_c2 > 0 else limit * limit):
             inliers += 1
     return inliers / n
-
-
-@njit(cache=True, inline="always")
-def _inlier_limit(px, py, distance, slope, inv_c2):
-    """The cost at most of an inlier at range ``hypot(px, py)``: ``distance + slope·r`` away."""
-    d = distance + slope * math.hypot(px, py)
-    return math.log1p(d * d * inv_c2) if inv_c2 > 0 else d * d
 
 
 @njit(cache=True, inline="always")
