@@ -128,7 +128,7 @@ class FrontEnd:
         # read against it, and rendering its field cost up to a tenth of a replay (fr-clinic).
         self._previous = PointScan(points)
         self._previous_surfaces = self.matcher.new_surfaces(points)
-        self._previous_built = False
+        self._previous_listed = False
         self.disowned_matches = 0  # matches the previous scan called lost
         self.status = "ok"
         self.evaluations = 0  # by the last match (what a viewer plots)
@@ -335,9 +335,9 @@ class FrontEnd:
         c = self.config.front_end
         if self.stale or c.previous_scan_gain >= 1 or self._previous.count == 0:
             return False  # a stale reading predicts nothing to vouch for
-        if not self._previous_built:
+        if not self._previous_listed:
             self.matcher.list_surfaces(self._previous, self._previous_surfaces)
-            self._previous_built = True
+            self._previous_listed = True
         # (the previous scan's pose in the keyframe's frame is self.rel until this scan's is set)
         predicted, fit = (self.matcher.surface_inlier_fraction(
             scan, self._previous_surfaces, between(p, self.rel), c.track_inlier_distance,
@@ -349,11 +349,11 @@ class FrontEnd:
 
     def _remember(self, scan: PointScan) -> None:
         """Keep ``scan`` as the previous scan (at most ``sensor.max_points`` of it, as a node
-        keeps); its field is built when first needed."""
+        keeps); its surfaces are listed when first needed."""
         n = min(scan.count, self._previous.capacity)
         self._previous.buffer[:n] = scan.buffer[:n]
         self._previous.count = n
-        self._previous_built = False
+        self._previous_listed = False
 
     def _overrules(self, scan, pose, fit: float, guess, step, inside: bool) -> bool:
         """A match (``fit``: its share of points on the keyframe's surfaces) is trusted over
@@ -497,7 +497,7 @@ class FrontEnd:
                 or len(previous) > self._previous.capacity or not np.all(np.isfinite(previous))):
             raise ValueError("the previous scan's points do not fit this front end")
         self._previous.buffer[: len(previous)] = previous
-        self._previous.count, self._previous_built = len(previous), False
+        self._previous.count, self._previous_listed = len(previous), False
         self._n_submap = len(members)
         self._submap_nodes[: self._n_submap] = members
         self._submap_poses[: self._n_submap] = poses
