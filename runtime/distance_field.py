@@ -104,8 +104,8 @@ def continues_line(pts, p, n, cos_bend, gap_ratio):
 def surface_end(pts, p, n, gap2, bend, cos_bend, gap_ratio):
     """The other end of the surface drawn from point ``p``: ``p + 1`` when the two are joined
     (closer than the gap, or continuing the line: :func:`continues_line`), else ``p`` itself
-    (a lone point): :func:`build_distance_field`'s rule (written out there: its loop is left
-    as it was)."""
+    (a lone point): the rule :func:`build_distance_field` and :func:`list_surfaces` join
+    points by."""
     if p + 1 < n:
         dx = pts[p + 1, 0] - pts[p, 0]
         dy = pts[p + 1, 1] - pts[p, 1]
@@ -141,18 +141,9 @@ def build_distance_field(pts, n, res, radius, max_gap, inv_c2, field, meta, bend
     gap2 = max_gap * max_gap
     cos_bend = math.cos(bend)
     for p in range(n):
-        ax = pts[p, 0]
-        ay = pts[p, 1]
-        bx = ax
-        by = ay
-        if p + 1 < n:
-            dx = pts[p + 1, 0] - ax
-            dy = pts[p + 1, 1] - ay
-            if dx * dx + dy * dy < gap2 or (bend > 0.0 and continues_line(pts, p, n, cos_bend,
-                                                                          gap_ratio)):
-                bx = pts[p + 1, 0]
-                by = pts[p + 1, 1]
-        splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field)
+        b = surface_end(pts, p, n, gap2, bend, cos_bend, gap_ratio)
+        splat_segment(pts[p, 0], pts[p, 1], pts[b, 0], pts[b, 1], ox, oy, res, radius, nx, ny,
+                      field)
     if inv_c2 > 0.0:
         far = math.log1p(r2 * inv_c2)
         meta[R2] = far
@@ -167,7 +158,7 @@ def build_distance_field(pts, n, res, radius, max_gap, inv_c2, field, meta, bend
 def segment_box(ax, ay, bx, by, ox, oy, res, radius, nx, ny):
     """Rows ``i0…i1`` and columns ``j0…j1`` of the nodes within ``radius`` of segment a–b
     (cut to the window's ``nx × ny``; empty when ``j1 < j0`` or ``i1 < i0``): the box
-    :func:`splat_segment` walks (written out there: its hot loop is left as it was)."""
+    :func:`splat_segment` walks and :func:`list_surfaces` records."""
     j0 = max(int(math.floor((min(ax, bx) - radius - ox) / res)), 0)
     j1 = min(int(math.ceil((max(ax, bx) + radius - ox) / res)), nx - 1)
     i0 = max(int(math.floor((min(ay, by) - radius - oy) / res)), 0)
@@ -186,10 +177,7 @@ def splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field):
     ux = bx - ax
     uy = by - ay
     uu = ux * ux + uy * uy
-    j0 = max(int(math.floor((min(ax, bx) - radius - ox) / res)), 0)
-    j1 = min(int(math.ceil((max(ax, bx) + radius - ox) / res)), nx - 1)
-    i0 = max(int(math.floor((min(ay, by) - radius - oy) / res)), 0)
-    i1 = min(int(math.ceil((max(ay, by) + radius - oy) / res)), ny - 1)
+    i0, i1, j0, j1 = segment_box(ax, ay, bx, by, ox, oy, res, radius, nx, ny)
     if j1 < j0:
         return
     m = j1 - j0 + 1
@@ -217,6 +205,13 @@ def splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field):
 
 
 @njit(cache=True, inline="always")
+def bilinear(a, b, c, d, fx, fy):
+    """The cost at ``(fx, fy)`` inside a cell whose nodes hold ``a`` (its own), ``b`` (the next
+    column), ``c`` (the next row) and ``d``."""
+    return a + (b - a) * fx + (c - a) * fy + (a - b - c + d) * fx * fy
+
+
+@njit(cache=True, inline="always")
 def lookup_grid(field, gx, gy, last_x, last_y, far):
     """Bilinear cost at grid coordinates ``(gx, gy)``; ``far`` outside ``[0, last)``."""
     j = int(math.floor(gx))
@@ -225,19 +220,7 @@ def lookup_grid(field, gx, gy, last_x, last_y, far):
         return far
     fx = gx - j
     fy = gy - i
-    a = field[i, j]
-    b = field[i, j + 1]
-    c = field[i + 1, j]
-    d = field[i + 1, j + 1]
-    return a + (b - a) * fx + (c - a) * fy + (a - b - c + d) * fx * fy
-
-
-@njit(cache=True, inline="always")
-def bilinear(a, b, c, d, fx, fy):
-    """The cost at ``(fx, fy)`` inside a cell whose nodes hold ``a`` (its own), ``b`` (the next
-    column), ``c`` (the next row) and ``d``: :func:`lookup_grid`'s formula (written out
-    there: the matcher's hot loop is left as it was)."""
-    return a + (b - a) * fx + (c - a) * fy + (a - b - c + d) * fx * fy
+    return bilinear(field[i, j], field[i, j + 1], field[i + 1, j], field[i + 1, j + 1], fx, fy)
 
 
 @njit(cache=True, inline="always")

@@ -198,12 +198,6 @@ class LoopCloser:
         return (float(chi2[edge]) <= c.chi2_gate,
                 float(np.sum(chi2)) - total_before <= c.total_gate)
 
-    def consistent(self, graph, edge: int, total_before: float, proposal: bool = False) -> bool:
-        """Step 4's test; a wide search's ``proposal`` is judged by its own error alone: the
-        rise of the total measures the drift it repairs (docs/method.md §5, step 4)."""
-        absorbed, contained = self.verdicts(graph, edge, total_before)
-        return absorbed and (proposal or contained)
-
 
 def relative_guess(graph, i: int, j: int) -> np.ndarray:
     """The graph's current estimate of node ``j`` in node ``i``'s frame."""

@@ -91,6 +91,14 @@ def scan_to_map_cost(grid, meta, pts, n, x, y, t, half):
     return beams / 255.0 + body / (255.0 * side * side)
 
 
+@njit(cache=True, inline="always")
+def _inlier_limit(distance, slope, px, py, inv_c2):
+    """The cost below which point (px, py) counts as an inlier: ``distance + slope·r`` taken
+    through the field's kernel (``inv_c2`` 0: plain ``d²``)."""
+    d = distance + slope * math.hypot(px, py)
+    return math.log1p(d * d * inv_c2) if inv_c2 > 0 else d * d
+
+
 @njit(cache=True)
 def inlier_fraction(field, meta, pts, n, x, y, t, distance, slope, inv_c2):
     """Share of the points within ``distance + slope·r`` of the reference surface at ``ΔP``
@@ -103,8 +111,7 @@ def inlier_fraction(field, meta, pts, n, x, y, t, distance, slope, inv_c2):
     for i in range(n):
         gx = gx0 + c * pts[i, 0] - s * pts[i, 1]
         gy = gy0 + s * pts[i, 0] + c * pts[i, 1]
-        d = distance + slope * math.hypot(pts[i, 0], pts[i, 1])
-        limit = math.log1p(d * d * inv_c2) if inv_c2 > 0 else d * d
+        limit = _inlier_limit(distance, slope, pts[i, 0], pts[i, 1], inv_c2)
         if lookup_grid(field, gx, gy, last_x, last_y, far) <= limit:
             inliers += 1
     return inliers / n
@@ -135,8 +142,7 @@ def surface_inlier_fraction(surfaces, count, tiling, heads, links, meta, radius,
                                         inv_c2, i, j)
                 ci, cj = i, j
             cost = bilinear(a, b, e, d, gx - j, gy - i)
-        limit = distance + slope * math.hypot(pts[k, 0], pts[k, 1])  # as inlier_fraction's
-        if cost <= (math.log1p(limit * limit * inv_c2) if inv_c2 > 0 else limit * limit):
+        if cost <= _inlier_limit(distance, slope, pts[k, 0], pts[k, 1], inv_c2):
             inliers += 1
     return inliers / n
 
