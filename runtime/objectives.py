@@ -118,13 +118,12 @@ def inlier_fraction(field, meta, pts, n, x, y, t, distance, slope, inv_c2):
 
 
 @njit(cache=True)
-def surface_inlier_fraction(surfaces, count, tiling, heads, links, meta, radius, pts, n, x, y,
-                            t, distance, slope, inv_c2):
-    """:func:`inlier_fraction` on the field a surface list stands for
+def surface_inliers(surfaces, count, tiling, heads, links, meta, radius, pts, n, x, y, t,
+                    distance, slope, inv_c2, stop):
+    """How many points :func:`inlier_fraction` counts on the field a surface list stands for
     (swarmslam.runtime.distance_field.list_surfaces, with the field's ``radius``): the same
-    share, to the bit, without building the field."""
-    if n == 0:
-        return 0.0
+    count, to the bit, without building the field. Counting ends once it reaches ``stop``
+    (a caller that only asks whether the share reaches some value reads fewer points)."""
     c, s, gx0, gy0, last_x, last_y, far = _grid_frame(meta, x, y, t)
     inliers = 0
     ci = cj = -1  # the cell read last: a dense scan's neighbours often share one
@@ -144,7 +143,9 @@ def surface_inlier_fraction(surfaces, count, tiling, heads, links, meta, radius,
             cost = bilinear(a, b, e, d, gx - j, gy - i)
         if cost <= _inlier_limit(distance, slope, pts[k, 0], pts[k, 1], inv_c2):
             inliers += 1
-    return inliers / n
+            if inliers >= stop:
+                break
+    return inliers
 
 
 @njit(cache=True, inline="always")

@@ -29,7 +29,7 @@ from swarmslam.runtime.objectives import (
     inlier_fraction,
     scan_to_map_cost,
     scan_to_scan_error,
-    surface_inlier_fraction,
+    surface_inliers,
 )
 from swarmslam.runtime.optimizers import SwarmOptimizer, ask, start, tell
 from swarmslam.runtime.optimizers.workspace import BEST_VAL, EVALUATIONS, ITERATION, reset_run
@@ -86,7 +86,7 @@ class ReferenceMaps:
 class SurfaceList:
     """A reference scan's surfaces as the fine field would be built from them, listed and
     indexed by tiles, not rendered: enough to read that field at one scan's points a few
-    times (:meth:`ScanMatcher.surface_inlier_fraction`)."""
+    times (:meth:`ScanMatcher.surface_inliers`)."""
 
     # Tile entries held per point: tiles are half a field radius a side, so a short
     # segment's box of nodes (a radius either way of it) meets 25–36 of them; a list that
@@ -503,12 +503,14 @@ class ScanMatcher:
                                      float(pose[0]), float(pose[1]), float(pose[2]),
                                      float(distance), float(slope), self._inv_c2()))
 
-    def surface_inlier_fraction(self, scan: PointScan, surfaces: SurfaceList, pose,
-                                distance: float, slope: float = 0.0) -> float:
-        """:meth:`inlier_fraction` against a listed reference (:meth:`list_surfaces`): the
-        same share, without building its field."""
-        return float(surface_inlier_fraction(
+    def surface_inliers(self, scan: PointScan, surfaces: SurfaceList, pose, distance: float,
+                        slope: float = 0.0, stop: int | None = None) -> int:
+        """How many of ``scan``'s points :meth:`inlier_fraction` counts, against a listed
+        reference (:meth:`list_surfaces`): the same count, without building its field.
+        Counting ends once it reaches ``stop`` (None: every point is read)."""
+        return int(surface_inliers(
             surfaces.surfaces, surfaces.count, surfaces.tiling, surfaces.heads, surfaces.links,
             surfaces.meta, self.config.field_radius,
             scan.buffer, scan.count, float(pose[0]), float(pose[1]), float(pose[2]),
-            float(distance), float(slope), self._inv_c2()))
+            float(distance), float(slope), self._inv_c2(),
+            scan.count + 1 if stop is None else int(stop)))

@@ -6,6 +6,7 @@ from scipy.spatial import cKDTree
 from swarmslam.runtime.distance_field import (INDEXED, N_META, N_SURFACE, NX, NY,
                                                build_distance_field, cell_costs, field_lookup,
                                                list_surfaces, splat_segment)
+from swarmslam.runtime.objectives import inlier_fraction, surface_inliers
 
 
 def build(points, res=0.05, radius=0.5, gap=0.0, cells=512, inv_c2=0.0, bend=0.0,
@@ -174,3 +175,26 @@ def noisy_room(rng, beams=720, noise=0.01):
         r = np.minimum(np.abs(3.0 / c), np.abs(2.0 / s))
     r = r + rng.normal(0.0, noise, beams)
     return np.c_[r * c, r * s]
+
+
+def test_listed_inliers_count_as_the_built_field_does_and_stop_where_asked():
+    # the previous-scan check counts a match's inliers on a listed field and stops early: the
+    # full count must be the built field's, and a count told to stop at k gives min(full, k)
+    rng = np.random.default_rng(5)
+    inv_c2, radius = 1 / 0.07 ** 2, 0.5
+    ref = noisy_room(rng, beams=360)
+    field, meta = build(ref, gap=1.0, inv_c2=inv_c2)
+    surface_list = listed(ref, inv_c2=inv_c2, side=5)
+    scan = noisy_room(rng, beams=360)
+    n = len(scan)
+    seen = set()
+    for x, y, t in rng.normal(0.0, [0.15, 0.15, 0.08], (40, 3)):
+        share = inlier_fraction(field, meta, scan, n, x, y, t, 0.2, 0.01, inv_c2)
+        full = surface_inliers(*surface_list, radius, scan, n, x, y, t, 0.2, 0.01, inv_c2, n + 1)
+        assert full / n == share
+        seen.add(full)
+        for stop in {1, max(full - 1, 1), max(full, 1), full + 1, n}:
+            got = surface_inliers(*surface_list, radius, scan, n, x, y, t, 0.2, 0.01, inv_c2,
+                                  stop)
+            assert got == min(full, stop), (stop, full, got)
+    assert len(seen) > 10  # poses that fit well and poorly

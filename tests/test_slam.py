@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from swarmslam.runtime.config import SlamConfig, override
-from swarmslam.runtime.front_end import scans_overrule
+from swarmslam.runtime.front_end import _unbeatable, scans_overrule
 from swarmslam.runtime.pose import between, compose, wrap_angle
 from swarmslam.runtime.pose_graph import LOOP
 from swarmslam.runtime.scan import PointScan
@@ -509,3 +509,16 @@ def test_a_loop_refused_for_the_drift_it_repairs_is_kept_when_the_next_agrees(mo
     slam, back, z = _drifted_chain(override(SlamConfig(), {"loop_closure.agreement_nodes": 0}))
     back.close_loop(0, n - 2, z)
     assert not back.close_loop(1, n - 1, z)  # without the rule, refused as before
+
+
+def test_a_match_counted_until_it_cannot_be_disowned_gets_the_verdict_of_full_counts():
+    # the previous-scan check stops counting the match's inliers at _unbeatable(n, gain):
+    # from there no count of the prediction's (at most n) beats it by more than the gain, in
+    # floating point as the check computes it, and below it one could
+    for gain in (0.0, 0.05, 0.1, 0.3, 0.7, 0.999):
+        for n in range(1, 160):
+            k = _unbeatable(n, gain)
+            assert 0 <= k <= n + 1
+            for fit in range(n + 1):
+                beatable = any(p / n - fit / n > gain for p in range(fit, n + 1))
+                assert beatable == (fit < k), (gain, n, fit, k)
