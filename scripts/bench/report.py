@@ -331,13 +331,14 @@ def headline(results_dir) -> str:
         lines += [f"Accuracy on the public logs (`swarmslam bench slam`, ABC with odometry, mean "
                   f"of seeds {seeds}; Kümmerle et al.'s metric), beside Cartographer's published "
                   "figures:", ""]
-        lines += _head("log", "eT (m)", "eR (°)", "Cartographer eT / eR", "× real time")
+        lines += _head("log", "eT (m)", "eR (°)", "Cartographer eT / eR",
+                       "× real time (slowest seed)")
         for s in data["summary"]:
             for label, key, et, er, _, _ in _slam_parts(s):
                 ref = PUBLISHED.get(s["dataset"], {}).get(key)
                 lines.append(_row(label, f"{et:.4f}", f"{er:.3f}",
                                   f"{ref[0]:.4f} / {ref[2]:.3f}" if ref else "—",
-                                  f"{s['real_time_factor_min']:.0f}"))
+                                  f"{s['real_time_factor_min']:.1f}"))
         lines.append("")
     for key in ("runtime", "env", "localize", "bags"):
         if key in by_key:
