@@ -190,7 +190,8 @@ def test_listed_inliers_count_as_the_built_field_does_and_stop_where_asked():
     seen = set()
     for x, y, t in rng.normal(0.0, [0.15, 0.15, 0.08], (40, 3)):
         share = inlier_fraction(field, meta, scan, n, x, y, t, 0.2, 0.01, inv_c2)
-        full = surface_inliers(*surface_list, radius, scan, n, x, y, t, 0.2, 0.01, inv_c2, n + 1)
+        full = surface_inliers(*surface_list, radius, scan, n, x, y, t, 0.2, 0.01, inv_c2,
+                               n + 1)
         assert full / n == share
         seen.add(full)
         for stop in {1, max(full - 1, 1), max(full, 1), full + 1, n}:
