@@ -343,15 +343,13 @@ class FrontEnd:
         tracked against it fits either copy; the previous scan, moments old, holds the wall
         once (fr-clinic's halls: ±4° a scan, alternating; docs/method.md §6.1)."""
         c = self.config.front_end
-        if self.stale or c.previous_scan_gain >= 1 or self._previous.count == 0:
+        n = scan.count
+        if self.stale or c.previous_scan_gain >= 1 or self._previous.count == 0 or n == 0:
             return False  # a stale reading predicts nothing to vouch for
         if not self._previous_listed:
             self.matcher.list_surfaces(self._previous, self._previous_surfaces)
             self._previous_listed = True
         # (the previous scan's pose in the keyframe's frame is self.rel until this scan's is set)
-        n = scan.count
-        if n == 0:
-            return False
         # The match first: the prediction fits at most every point, so a match fitting
         # ``unbeatable`` of them cannot be disowned and its count stops there. The verdict is
         # the one both counts in full give, in about half the reads (most matches fit 0.9+).
