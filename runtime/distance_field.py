@@ -116,7 +116,7 @@ def surface_end(pts, p, n, gap2, bend, cos_bend, gap_ratio):
 
 
 @njit(cache=True)
-def build_distance_field(pts, n, res, radius, max_gap, inv_c2, field, meta, bend=0.0,
+def build_distance_field(pts, n, res, radius, max_gap, inv_c2, field, meta, columns, bend=0.0,
                          gap_ratio=2.0):
     """Per-point cost of the nearest reference surface through ``pts[:n]``, at every node.
 
@@ -126,7 +126,8 @@ def build_distance_field(pts, n, res, radius, max_gap, inv_c2, field, meta, bend
     The cost is the truncated squared distance ``d²`` (``inv_c2 == 0``, Eq. 14's summand) or
     the Cauchy kernel ``log(1 + d²/c²)`` with ``inv_c2 = 1/c²``. Both are monotonic in ``d²``,
     so the minimum over surfaces can be taken on either; baking the kernel in here costs one
-    pass at build time instead of a logarithm per point per candidate pose.
+    pass at build time instead of a logarithm per point per candidate pose. ``columns``
+    (at least a row of ``field`` long) is scratch for the nodes' x (:func:`column_centres`).
     """
     fit_window(pts, n, res, radius, field.shape[1], field.shape[0], meta)
     r2 = radius * radius
@@ -140,10 +141,11 @@ def build_distance_field(pts, n, res, radius, max_gap, inv_c2, field, meta, bend
             field[i, j] = r2
     gap2 = max_gap * max_gap
     cos_bend = math.cos(bend)
+    column_centres(ox, res, nx, columns)
     for p in range(n):
         b = surface_end(pts, p, n, gap2, bend, cos_bend, gap_ratio)
         splat_segment(pts[p, 0], pts[p, 1], pts[b, 0], pts[b, 1], ox, oy, res, radius, nx, ny,
-                      field)
+                      field, columns)
     if inv_c2 > 0.0:
         far = math.log1p(r2 * inv_c2)
         meta[R2] = far
@@ -166,14 +168,26 @@ def segment_box(ax, ay, bx, by, ox, oy, res, radius, nx, ny):
     return i0, i1, j0, j1
 
 
+@njit(cache=True, inline="always")
+def column_centres(ox, res, nx, columns):
+    """``columns[j] = ox + j·res``, the x of the window's node column ``j`` (``j < nx``), as
+    :func:`splat_segment` reads it."""
+    for j in range(nx):
+        columns[j] = ox + j * res
+
+
 @njit(cache=True)
-def splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field):
-    """Lower every node within ``radius`` of segment a–b to its squared distance from it.
+def splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field, columns):
+    """Lower every node within ``radius`` of segment a–b to its squared distance from it;
+    ``columns``: the nodes' x (:func:`column_centres` of ``ox``, ``res``, ``nx``).
 
     The hot loop of every build: each row is a slice walked from 0 with a select, not a
     branch, so that it compiles to vector instructions (a negative index check or a
     conditional store would keep it scalar: 1.7× the time), and the point case (a = b) needs
-    no projection. The arithmetic is the same, operation for operation, so the field is too."""
+    no projection. A node's x is read from ``columns``, not computed from its index: the
+    integer's conversion, lane by lane, cost a third of the build
+    (docs/experiments/2026-11-27-field-speed.md). The arithmetic is the same, operation for
+    operation, so the field is too."""
     ux = bx - ax
     uy = by - ay
     uu = ux * ux + uy * uy
@@ -181,13 +195,14 @@ def splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field):
     if j1 < j0:
         return
     m = j1 - j0 + 1
+    xs = columns[j0 : j1 + 1]
     for i in range(i0, i1 + 1):
         cy = oy + i * res
         row = field[i, j0 : j1 + 1]
         if uu > 0.0:
             wy = (cy - ay) * uy
             for k in range(m):
-                cx = ox + (k + j0) * res
+                cx = xs[k]
                 t = ((cx - ax) * ux + wy) / uu  # the nearest point's place along a–b
                 t = 0.0 if t < 0.0 else (1.0 if t > 1.0 else t)
                 dx = ax + t * ux - cx
@@ -198,7 +213,7 @@ def splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field):
         else:
             dy = ay - cy
             for k in range(m):
-                dx = ax - (ox + (k + j0) * res)
+                dx = ax - xs[k]
                 d2 = dx * dx + dy * dy
                 f = row[k]
                 row[k] = d2 if d2 < f else f

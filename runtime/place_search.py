@@ -31,7 +31,7 @@ import numpy as np
 from numba import njit
 
 from swarmslam.runtime.config import RelocalizationConfig
-from swarmslam.runtime.distance_field import splat_segment
+from swarmslam.runtime.distance_field import column_centres, splat_segment
 from swarmslam.runtime.node_scans import NodeScans
 from swarmslam.runtime.occupancy_grid import integrate_scan
 from swarmslam.runtime.pose import compose
@@ -51,7 +51,7 @@ def render_hits(points, counts, poses, index, n_index, max_range, max_gap, ox, o
     ny = hits.shape[0]
     clear_distances(d2, sigma, 0, ny)
     splat_scans(points, counts, poses, index, 0, n_index, max_range, max_gap, ox, oy, res,
-                sigma, d2)
+                sigma, d2, np.empty(d2.shape[1]))
     hits_from_distances(d2, sigma, hits, 0, ny)
 
 
@@ -67,10 +67,11 @@ def clear_distances(d2, sigma, first, last):
 
 @njit(cache=True)
 def splat_scans(points, counts, poses, index, first, last, max_range, max_gap, ox, oy, res,
-                sigma, d2, tolerance=0.0):
+                sigma, d2, columns, tolerance=0.0):
     """The scans of nodes ``index[first:last]`` splatted into ``d2`` (each cell the least
     squared distance to a surface, within ``3·sigma``); points beyond ``max_range`` of their
-    node are left out, consecutive points closer than ``max_gap`` joined.
+    node are left out, consecutive points closer than ``max_gap`` joined. ``columns``: scratch
+    of a row's length (:func:`splat_segment`).
 
     With ``tolerance`` > 0 a run of joined points is drawn as one segment (no longer than the
     splat's reach) while every point it skips lies within ``tolerance`` of it: a dense scan's
@@ -80,6 +81,7 @@ def splat_scans(points, counts, poses, index, first, last, max_range, max_gap, o
     radius = 3.0 * sigma
     gap2 = max_gap * max_gap
     reach2 = max_range * max_range
+    column_centres(0.0, res, nx, columns)  # the points are moved by (-ox, -oy) instead
     for e in range(first, last):
         m = index[e]
         c, s = math.cos(poses[m, 2]), math.sin(poses[m, 2])
@@ -103,7 +105,7 @@ def splat_scans(points, counts, poses, index, first, last, max_range, max_gap, o
             ay = poses[m, 1] + s * px + c * py - oy
             bx = poses[m, 0] + c * qx - s * qy - ox
             by = poses[m, 1] + s * qx + c * qy - oy
-            splat_segment(ax, ay, bx, by, 0.0, 0.0, res, radius, nx, ny, d2)
+            splat_segment(ax, ay, bx, by, 0.0, 0.0, res, radius, nx, ny, d2, columns)
             covered = q > p
             p = q if q > p else p + 1
 

@@ -77,6 +77,8 @@ class ReferenceMaps:
         grid_cells = cells if grid_cells is None else grid_cells
         self.field = np.zeros((cells, cells), dtype=np.float32)
         self.coarse_field = np.zeros((coarse_cells, coarse_cells), dtype=np.float32)
+        self.columns = np.zeros(cells)  # scratch of the builds (distance_field.column_centres)
+        self.coarse_columns = np.zeros(coarse_cells)
         self.coarse_meta = np.zeros(N_META, dtype=np.float64)
         self.grid = np.zeros((grid_cells, grid_cells), dtype=np.uint8)
         self.meta = np.zeros(N_META, dtype=np.float64)
@@ -394,6 +396,7 @@ class ScanMatcher:
                 0.0,
                 ref.coarse_field,
                 ref.coarse_meta,
+                ref.coarse_columns,
                 c.surface_bend,
                 c.surface_gap_ratio,
             )
@@ -411,8 +414,8 @@ class ScanMatcher:
         left as it was)."""
         c = self.config
         build_distance_field(scan.buffer, scan.count, c.resolution, c.field_radius, c.max_gap,
-                             self._inv_c2(), out.field, out.meta, c.surface_bend,
-                             c.surface_gap_ratio)
+                             self._inv_c2(), out.field, out.meta, out.columns,
+                             c.surface_bend, c.surface_gap_ratio)
 
     def _inv_c2(self) -> float:
         """The fine field's Cauchy kernel, ``1/c²`` (0: the field holds plain ``d²``)."""

@@ -143,6 +143,7 @@ class WideLoopSearch:
         _, n = self._extent(self.widest)
         self._pyramid_buffer = np.zeros((levels + 2) * n * n, np.uint8)
         self._d2_buffer = np.zeros(n * n)
+        self._columns = np.zeros(n)  # a d2 row's node x (place_search.splat_scans)
         self._bounds_buffer = np.zeros((levels + 1) * n * n, np.uint8)
         self._free_buffer = np.zeros((levels + 1) * n * n, np.uint8)
         self._n = 0
@@ -272,7 +273,7 @@ class WideLoopSearch:
         for first in range(0, n_old, per_slice):
             splat_scans(nodes.points, nodes.counts, poses, self._index, first,
                         min(first + per_slice, n_old), c.wide_query_range + radius,
-                        self.max_gap, ox, oy, res, sigma, self._d2,
+                        self.max_gap, ox, oy, res, sigma, self._d2, self._columns,
                         c.wide_surface_tolerance)
             yield
         yield from _in_parts(n, rows, hits_from_distances, self._d2, sigma, self._pyramid[0])

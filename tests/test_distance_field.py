@@ -4,8 +4,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from swarmslam.runtime.distance_field import (INDEXED, N_META, N_SURFACE, NX, NY,
-                                               build_distance_field, cell_costs, field_lookup,
-                                               list_surfaces, splat_segment)
+                                               build_distance_field, cell_costs, column_centres,
+                                               field_lookup, list_surfaces, splat_segment)
 from swarmslam.runtime.objectives import inlier_fraction, surface_inliers
 
 
@@ -13,8 +13,8 @@ def build(points, res=0.05, radius=0.5, gap=0.0, cells=512, inv_c2=0.0, bend=0.0
           gap_ratio=2.0):
     field = np.zeros((cells, cells), np.float32)
     meta = np.zeros(N_META)
-    build_distance_field(points, len(points), res, radius, gap, inv_c2, field, meta, bend,
-                         gap_ratio)
+    build_distance_field(points, len(points), res, radius, gap, inv_c2, field, meta,
+                         np.zeros(cells), bend, gap_ratio)
     return field, meta
 
 
@@ -42,7 +42,9 @@ def test_a_segment_lowers_every_node_within_its_radius_to_its_exact_squared_dist
         b = [a, a + [rng.uniform(-2, 2), 0.0], a + [0.0, rng.uniform(-2, 2)],
              a + rng.uniform(-0.1, 0.1, 2), rng.uniform(-2.0, 4.0, 2)][trial % 5]
         field = np.full((ny, nx), radius * radius)
-        splat_segment(a[0], a[1], b[0], b[1], ox, oy, res, radius, nx, ny, field)
+        columns = np.zeros(nx)
+        column_centres(ox, res, nx, columns)
+        splat_segment(a[0], a[1], b[0], b[1], ox, oy, res, radius, nx, ny, field, columns)
         cx = ox + np.arange(nx)[None, :] * res
         cy = oy + np.arange(ny)[:, None] * res
         ux, uy = b[0] - a[0], b[1] - a[1]

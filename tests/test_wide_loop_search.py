@@ -248,7 +248,7 @@ def _rendered(points, tolerance, res=0.1, sigma=0.2, n=80):
     clear_distances(d2, sigma, 0, n)
     counts = np.array([len(points)], np.int64)
     splat_scans(points[None], counts, np.zeros((1, 3)), np.zeros(1, np.int64), 0, 1, 30.0, 1.0,
-                0.0, 0.0, res, sigma, d2, tolerance)
+                0.0, 0.0, res, sigma, d2, np.zeros(n), tolerance)
     return d2
 
 
