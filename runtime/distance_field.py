@@ -184,10 +184,10 @@ def splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field, columns):
     The hot loop of every build: each row is a slice walked from 0 with a select, not a
     branch, so that it compiles to vector instructions (a negative index check or a
     conditional store would keep it scalar: 1.7× the time), and the point case (a = b) needs
-    no projection. A node's x is read from ``columns``, not computed from its index: the
-    integer's conversion, lane by lane, cost a third of the build
-    (docs/experiments/2026-11-27-field-speed.md). The arithmetic is the same, operation for
-    operation, so the field is too."""
+    no projection. A node's x is read from ``columns``, not computed from its index: on a CPU
+    without AVX-512 (Zen 3) the index's conversion to a double runs lane by lane, a third of
+    a build (docs/experiments/2026-11-27-field-speed.md). The arithmetic is the same,
+    operation for operation, so the field is too."""
     ux = bx - ax
     uy = by - ay
     uu = ux * ux + uy * uy
