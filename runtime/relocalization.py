@@ -131,6 +131,7 @@ class Relocalizer:
         # headings past the last (a group's middle may lie there) wrap around the circle
         self._offsets = np.zeros((groups * group if not two else self.n_headings,
                                   rc.query_points, 2), np.int64)
+        self._offset_box = np.zeros((len(self._offsets), 4), np.int64)
         self._roots = np.zeros((roots, 5), np.int64)
         self._stack = np.zeros((8 * (rc.levels + 2), 5), np.int64)
         self._state = np.zeros(SEARCH_STATE, np.int64)
@@ -138,6 +139,7 @@ class Relocalizer:
         if two:  # the first pass's query, offsets, candidates
             self._coarse_query = np.zeros((rc.query_points, 2))
             self._coarse_offsets = np.zeros((groups * group, rc.coarse_points, 2), np.int64)
+            self._coarse_offset_box = np.zeros((groups * group, 4), np.int64)
             self._coarse_found = np.zeros((rc.coarse_candidates, 4), np.int64)
             self._candidates = np.zeros((rc.coarse_candidates, 3), np.int64)
         self.cell_radius = int(math.ceil(rc.distinct_distance / rc.resolution))
@@ -203,15 +205,16 @@ class Relocalizer:
         """:meth:`search` as a generator: it yields between slices of ``budget`` blocks of the
         branch and bound."""
         rc = self.config
-        n_headings, step = self._rotate(query, n, self.place, self._offsets)
+        n_headings, step = self._rotate(query, n, self.place, self._offsets, self._offset_box)
         full = HIT_MAX * n
         min_score = int(math.ceil(rc.min_score * full))
         heading_radius = int(math.ceil(rc.distinct_angle / step))
         if self.coarse is None:  # one exhaustive pass
             n_found, self.blocks_scored = yield from self._branch_and_bound(
                 budget, self.place.bounds, self.place.shifts, self.place.groups,
-                self.place.free, self._offsets, n, n_headings, min_score, rc.ambiguity_ratio,
-                self.cell_radius, heading_radius, self._roots, self._stack, self._found)
+                self.place.free, self._offsets, self._offset_box, n, n_headings, min_score,
+                rc.ambiguity_ratio, self.cell_radius, heading_radius, self._roots, self._stack,
+                self._found)
         else:
             n_candidates, blocks = yield from self._coarse_pass(query, n, budget)
             # each candidate's cell and heading on the fine grid; its window spans one coarse
@@ -251,11 +254,12 @@ class Relocalizer:
         :meth:`search`; returns ``(how many, blocks scored)``."""
         rc, coarse = self.config, self.coarse
         m = select_query(query, n, math.inf, 0.0, rc.coarse_points, self._coarse_query)
-        n_headings, self._coarse_step = self._rotate(self._coarse_query, m, coarse,
-                                                     self._coarse_offsets)
+        n_headings, self._coarse_step = self._rotate(
+            self._coarse_query, m, coarse, self._coarse_offsets, self._coarse_offset_box)
         return (yield from self._branch_and_bound(
             budget, coarse.bounds, coarse.shifts, coarse.groups, coarse.free,
-            self._coarse_offsets, m, n_headings, int(math.ceil(rc.coarse_min_score * HIT_MAX * m)),
+            self._coarse_offsets, self._coarse_offset_box, m, n_headings,
+            int(math.ceil(rc.coarse_min_score * HIT_MAX * m)),
             rc.coarse_ratio, int(math.ceil(rc.coarse_distinct_distance / coarse.resolution)),
             int(math.ceil(rc.coarse_distinct_angle / self._coarse_step)), self._roots,
             self._stack, self._coarse_found))
@@ -271,15 +275,16 @@ class Relocalizer:
                 return n_found, scored
             yield
 
-    def _rotate(self, query, n: int, place: PlaceMap, offsets) -> tuple[int, float]:
-        """The query's cell offsets at each heading of ``place``'s grid; the heading step moves
-        the query's farthest point by one cell (fewer steps for a scan of a small room than
-        the allocation's ``query_range`` allows). Returns ``(headings, step)``."""
+    def _rotate(self, query, n: int, place: PlaceMap, offsets, box) -> tuple[int, float]:
+        """The query's cell offsets at each heading of ``place``'s grid (and each heading's
+        box of them, into ``box``); the heading step moves the query's farthest point by
+        one cell (fewer steps for a scan of a small room than the allocation's
+        ``query_range`` allows). Returns ``(headings, step)``."""
         res = place.resolution
         reach = max(float(np.max(np.hypot(query[:n, 0], query[:n, 1]))), res)
         n_headings = min(_heading_count(res, reach), _heading_count(res, self.config.query_range))
         step = 2 * math.pi / n_headings
-        rotate_query(query, n, res, step, offsets.shape[0], offsets)
+        rotate_query(query, n, res, step, offsets.shape[0], offsets, box)
         return n_headings, step
 
     def polish(self, scan: PointScan, pose) -> np.ndarray:

@@ -159,6 +159,7 @@ class WideLoopSearch:
         self._recent = PointScan(max_points * c.wide_query_nodes)
         self._turned = np.zeros((c.wide_query_points, 2))
         self._offsets = np.zeros((most, c.wide_query_points, 2), np.int64)
+        self._offset_box = np.zeros((most, 4), np.int64)
         self._roots = np.zeros((most * (-(-n // (1 << levels))) ** 2, 5), np.int64)
         self._stack = np.zeros((8 * (levels + 2), 5), np.int64)
         self._search_state = np.zeros(SEARCH_STATE, np.int64)
@@ -285,13 +286,15 @@ class WideLoopSearch:
         yield from _in_parts(n, rows, open_window, self.free, half, self.cells)
         start = t - angle  # heading a is start + a·step
         turn_points(self._query, n_query, start, self._turned)
-        rotate_query(self._turned, n_query, res, self.step, self.n_headings, self._offsets)
+        rotate_query(self._turned, n_query, res, self.step, self.n_headings, self._offsets,
+                     self._offset_box)
         min_score = int(math.ceil(c.wide_min_score * HIT_MAX * n_query))
         self._search_state[S_PHASE] = 0
         while True:
             n_found, _, done = branch_and_bound(
-                self.bounds, self.shifts, self.groups, self.free, self._offsets, n_query,
-                self.n_headings, min_score, c.wide_ratio, self.cell_radius, self.n_headings,
+                self.bounds, self.shifts, self.groups, self.free, self._offsets,
+                self._offset_box, n_query, self.n_headings, min_score, c.wide_ratio,
+                self.cell_radius, self.n_headings,
                 self._roots, self._stack, self._found, self._search_state,
                 c.wide_slice_blocks if sliced else UNLIMITED)
             if done:

@@ -15,6 +15,8 @@ from swarmslam.runtime.place_search import (
     SEARCH_STATE,
     UNLIMITED,
     PlaceMap,
+    _score,
+    _score_children,
     bound_shift,
     branch_and_bound,
     pool_bounds,
@@ -70,29 +72,30 @@ def random_search(rng, ny, nx, groups, hit_share, free_box, free_share, reach, n
     pool_pyramid(free)
     points = rng.uniform(-reach, reach, size=(n, 2))
     offsets = np.zeros((n_headings, n, 2), np.int64)
-    rotate_query(points, n, 0.1, 2 * math.pi / n_headings, n_headings, offsets)
+    extent = np.zeros((n_headings, 4), np.int64)
+    rotate_query(points, n, 0.1, 2 * math.pi / n_headings, n_headings, offsets, extent)
     brute = np.zeros((n_headings, ny, nx), np.int64)
     for a in range(n_headings):
         for i, j in zip(*np.nonzero(free[0])):
             r, q = i + offsets[a, :, 0], j + offsets[a, :, 1]
             ok = (r >= 0) & (r < ny) & (q >= 0) & (q < nx)
             brute[a, i, j] = int(pyramid[0][r[ok], q[ok]].astype(np.int64).sum())
-    return bounds, shifts, free, offsets, brute
+    return bounds, shifts, free, offsets, extent, brute
 
 
 def test_branch_and_bound_finds_the_exact_best_pose():
     """Against brute force over every standable cell and heading of a random map."""
     n_headings, n = 24, 12
     groups = np.array([1, 1, 2, 4], np.int64)
-    bounds, shifts, free, offsets, brute = random_search(
+    bounds, shifts, free, offsets, extent, brute = random_search(
         np.random.default_rng(4), 40, 52, groups, 0.3, (slice(8, 32), slice(10, 44)), 0.5,
         0.6, n_headings, n)  # points within 6 cells
     roots = np.zeros((n_headings * 64, 5), np.int64)
     stack = np.zeros((64, 5), np.int64)
     found = np.zeros((4, 4), np.int64)
     state = np.zeros(SEARCH_STATE, np.int64)
-    n_found, scored, done = branch_and_bound(bounds, shifts, groups, free, offsets, n,
-                                             n_headings, 1, 1.0, 0, 0, roots, stack, found,
+    n_found, scored, done = branch_and_bound(bounds, shifts, groups, free, offsets, extent,
+                                             n, n_headings, 1, 1.0, 0, 0, roots, stack, found,
                                              state, UNLIMITED)
     assert done and n_found == 1
     assert found[0, 0] == brute.max()
@@ -103,13 +106,60 @@ def test_branch_and_bound_finds_the_exact_best_pose():
     found[:], state[:], slices = 0, 0, 0
     while True:
         n_sliced, scored_sliced, done = branch_and_bound(
-            bounds, shifts, groups, free, offsets, n, n_headings, 1, 1.0, 0, 0, roots, stack,
-            found, state, 7)
+            bounds, shifts, groups, free, offsets, extent, n, n_headings, 1, 1.0, 0, 0, roots,
+            stack, found, state, 7)
         slices += 1
         if done:
             break
     assert (n_sliced, scored_sliced) == (n_found, scored) and np.array_equal(found, whole)
     assert slices >= scored // 15  # a slice scores its budget and one block's children at most
+
+
+def test_a_headings_box_holds_every_offset():
+    rng = np.random.default_rng(3)
+    points = rng.uniform(-2.0, 2.0, size=(30, 2))
+    offsets = np.zeros((12, 40, 2), np.int64)
+    extent = np.full((12, 4), 99, np.int64)
+    rotate_query(points, 30, 0.1, 2 * math.pi / 12, 12, offsets, extent)
+    rows, cols = offsets[:, :30, 0], offsets[:, :30, 1]
+    assert np.array_equal(extent, np.c_[rows.min(1), rows.max(1), cols.min(1), cols.max(1)])
+
+
+def test_four_blocks_scored_together_score_as_one_at_a_time():
+    """Each block's exact score where it reaches the floor, below the floor where it does not
+    (as one at a time: every caller drops those), a block left out below it; blocks whose
+    points fall off the grid (its edges) included."""
+    n_headings, n = 8, 15
+    bounds, shifts, free, offsets, extent, brute = random_search(
+        np.random.default_rng(11), 30, 34, np.ones(4, np.int64), 0.6, (slice(0, 30),
+                                                                       slice(0, 34)),
+        1.0, 0.8, n_headings, n)
+    rng = np.random.default_rng(12)
+    reached = short = inside = 0
+    for _ in range(3000):
+        h = int(rng.integers(0, 3))
+        half = 1 << h
+        i, j = int(rng.integers(0, 30 - half)), int(rng.integers(0, 34 - half))
+        a = int(rng.integers(0, n_headings))
+        floor = int(rng.integers(1, n * HIT_MAX))
+        on = rng.random(4) < 0.8
+        inside += (i + extent[a, 0] >= 0 and i + half + extent[a, 1] < 30
+                   and j + extent[a, 2] >= 0 and j + half + extent[a, 3] < 34)
+        together = _score_children(bounds, h, 0, offsets, extent, a, n, i, j, half, floor,
+                                   *on)
+        for c, (ii, jj) in enumerate(((i, j), (i, j + half), (i + half, j),
+                                      (i + half, j + half))):
+            alone = _score(bounds, h, 0, offsets, a, n, ii, jj, floor)
+            if not on[c]:
+                assert together[c] < floor
+            elif alone >= floor:
+                assert together[c] == alone
+                reached += 1
+            else:
+                assert together[c] < floor
+                short += 1
+    assert reached > 100 and short > 100  # both cases seen often, and blocks whose points
+    assert 300 < inside < 2700  # all lie on the grid as often as blocks at its edges
 
 
 def test_a_full_list_of_poses_is_the_top_of_brute_force():
@@ -118,12 +168,13 @@ def test_a_full_list_of_poses_is_the_top_of_brute_force():
     n_headings, n, k = 16, 10, 6
     groups = np.ones(4, np.int64)
     # standable cells within the points' reach of the edges: bounds stay exact
-    bounds, shifts, free, offsets, brute = random_search(
+    bounds, shifts, free, offsets, extent, brute = random_search(
         np.random.default_rng(8), 32, 36, groups, 0.4, (slice(8, 24), slice(8, 28)), 1.0,
         0.5, n_headings, n)
     found = np.zeros((k, 4), np.int64)
-    n_found, _, _ = branch_and_bound(bounds, shifts, groups, free, offsets, n, n_headings, 1,
-                                     0.01, 0, 0, np.zeros((n_headings * 64, 5), np.int64),
+    n_found, _, _ = branch_and_bound(bounds, shifts, groups, free, offsets, extent, n,
+                                     n_headings, 1, 0.01, 0, 0,
+                                     np.zeros((n_headings * 64, 5), np.int64),
                                      np.zeros((64, 5), np.int64), found,
                                      np.zeros(SEARCH_STATE, np.int64), UNLIMITED)
     assert n_found == k
@@ -263,15 +314,16 @@ def test_the_search_allocates_nothing_after_warm_up(room):
     n = len(pts)
     n_coarse = relocalizer._coarse_offsets.shape[0]
     offsets = np.zeros((n_coarse, n, 2), np.int64)
-    rotate_query(pts, n, coarse.resolution, 2 * math.pi / n_coarse, n_coarse, offsets)
-    coarse_args = (coarse.bounds, coarse.shifts, coarse.groups, coarse.free, offsets, n,
+    extent = np.zeros((n_coarse, 4), np.int64)
+    rotate_query(pts, n, coarse.resolution, 2 * math.pi / n_coarse, n_coarse, offsets, extent)
+    coarse_args = (coarse.bounds, coarse.shifts, coarse.groups, coarse.free, offsets, extent, n,
                    n_coarse, int(0.5 * HIT_MAX * n), 0.8, 1, 4, relocalizer._roots,
                    relocalizer._stack, relocalizer._coarse_found, relocalizer._state, UNLIMITED)
     relocalizer._state[:] = 0
     n_candidates, _, _ = branch_and_bound(*coarse_args)
     assert n_candidates > 0
     rotate_query(pts, n, place.resolution, 2 * math.pi / relocalizer.n_headings,
-                 relocalizer.n_headings, relocalizer._offsets)
+                 relocalizer.n_headings, relocalizer._offsets, relocalizer._offset_box)
     candidates = relocalizer._candidates
     candidates[:n_candidates] = relocalizer._coarse_found[:n_candidates, 1:] * [1, 5, 5]
     fine_args = (place.bounds, place.free, relocalizer._offsets, n, relocalizer.n_headings,
