@@ -173,18 +173,28 @@ def pool_pyramid(levels):
 def pool_level(levels, h, first, last):
     """Rows ``first:last`` of level ``h`` of the pyramid (:func:`pool_pyramid`); level
     ``h − 1`` must be whole."""
-    ny, nx = levels.shape[1], levels.shape[2]
-    half = 1 << (h - 1)
+    _block_max(levels[h - 1], levels[h], 1 << (h - 1), first, last)
+
+
+@njit(cache=True)
+def _block_max(src, dst, d, first, last):
+    """Rows ``first:last`` of ``dst``: at ``(i, j)`` the largest of ``src`` at ``(i, j)``,
+    ``(i, j + d)``, ``(i + d, j)`` and ``(i + d, j + d)``, those on the grid. Each row is split
+    where ``j + d`` leaves it, so that the loops hold no test and compile to vector maxima."""
+    ny, nx = dst.shape[0], dst.shape[1]
+    inner = max(nx - d, 0)  # columns whose j + d is on the grid
     for i in range(first, last):
-        for j in range(nx):
-            v = levels[h - 1, i, j]
-            if j + half < nx:
-                v = max(v, levels[h - 1, i, j + half])
-            if i + half < ny:
-                v = max(v, levels[h - 1, i + half, j])
-                if j + half < nx:
-                    v = max(v, levels[h - 1, i + half, j + half])
-            levels[h, i, j] = v
+        if i + d < ny:
+            for j in range(inner):
+                dst[i, j] = max(max(src[i, j], src[i, j + d]),
+                                max(src[i + d, j], src[i + d, j + d]))
+            for j in range(inner, nx):
+                dst[i, j] = max(src[i, j], src[i + d, j])
+        else:
+            for j in range(inner):
+                dst[i, j] = max(src[i, j], src[i, j + d])
+            for j in range(inner, nx):
+                dst[i, j] = src[i, j]
 
 
 def bound_shift(group: int) -> int:
@@ -207,23 +217,12 @@ def pool_bounds(pyramid, shifts, bounds):
 @njit(cache=True)
 def pool_bound_level(pyramid, shifts, bounds, h, first, last):
     """Rows ``first:last`` of ``bounds[h]`` (:func:`pool_bounds`); ``pyramid`` must be
-    whole."""
-    ny, nx = bounds.shape[1], bounds.shape[2]
+    whole (of the same rows and columns)."""
     w = (1 << h) + 2 * shifts[h]
     p = 0
     while (2 << p) <= w:
         p += 1
-    far = w - (1 << p)
-    for i in range(first, last):
-        for j in range(nx):
-            v = pyramid[p, i, j]
-            if j + far < nx:
-                v = max(v, pyramid[p, i, j + far])
-            if i + far < ny:
-                v = max(v, pyramid[p, i + far, j])
-                if j + far < nx:
-                    v = max(v, pyramid[p, i + far, j + far])
-            bounds[h, i, j] = v
+    _block_max(pyramid[p], bounds[h], w - (1 << p), first, last)
 
 
 # Columns of a heading's offset box (rotate_query): its least and greatest row and column

@@ -20,6 +20,7 @@ from swarmslam.runtime.place_search import (
     bound_shift,
     branch_and_bound,
     pool_bounds,
+    pool_level,
     pool_pyramid,
     refine_candidates,
     rotate_query,
@@ -399,3 +400,28 @@ def test_bench_localize_maps_a_log_and_scores_its_queries(tmp_path):
     assert judge(Ambiguous((), (), "none"), np.zeros(3)) == "ambiguous"
     assert judge(Located(np.array([0.31, 0.0, 0.0]), 1.0), np.zeros(3)) == "wrong"
     assert judge(Located(np.array([0.2, 0.1, 0.05]), 1.0), np.zeros(3)) == "success"
+
+
+def test_pooling_takes_each_blocks_largest_value():
+    """Against numpy over every block: the pyramid (in two parts of rows, as the wide loop
+    search pools it, and whole) and the bounds, on a grid whose sides are no power of two."""
+    rng = np.random.default_rng(21)
+    ny, nx, top = 23, 37, 4
+    grid = rng.integers(0, 256, size=(ny, nx)).astype(np.uint8)
+    pyramid = np.zeros((top + 1, ny, nx), np.uint8)
+    pyramid[0] = grid
+    parts = pyramid.copy()
+    pool_pyramid(pyramid)
+    for h in range(1, top + 1):
+        pool_level(parts, h, 0, 10)
+        pool_level(parts, h, 10, ny)
+        side = 1 << h
+        expected = [[grid[i:i + side, j:j + side].max() for j in range(nx)] for i in range(ny)]
+        assert np.array_equal(pyramid[h], expected) and np.array_equal(parts[h], expected)
+    shifts = np.array([0, 0, 3, 2], np.int64)
+    bounds = np.zeros((len(shifts), ny, nx), np.uint8)
+    pool_bounds(pyramid, shifts, bounds)
+    for h, shift in enumerate(shifts):
+        side = (1 << h) + 2 * shift
+        expected = [[grid[i:i + side, j:j + side].max() for j in range(nx)] for i in range(ny)]
+        assert np.array_equal(bounds[h], expected)
