@@ -159,8 +159,8 @@ def test_four_blocks_scored_together_score_as_one_at_a_time():
             else:
                 assert together[c] < floor
                 short += 1
-    assert reached > 100 and short > 100  # both cases seen often, and blocks whose points
-    assert 300 < inside < 2700  # all lie on the grid as often as blocks at its edges
+    assert reached > 100 and short > 100  # both kinds of score seen often,
+    assert 300 < inside < 2700  # and both blocks wholly on the grid and blocks at its edges
 
 
 def test_a_full_list_of_poses_is_the_top_of_brute_force():
