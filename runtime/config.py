@@ -332,6 +332,11 @@ class FrontEndConfig(Section):
         0.6, "rad: after odometry's reading came again unchanged (stale), a lost match is "
         "sought again this far either side in heading (a robot may have turned in place "
         "meanwhile)", gt=0, le=math.pi)
+    stale_motion: bool = _setting(
+        True, "a reading that came again unchanged (stale), within as many scans as the last "
+        "new one took to come, predicts the translation per scan that reading showed, not "
+        "its turn (false: no motion): odometry read less often than the scans (docs/method.md "
+        "§6.1)")
     window_margin: float = _setting(
         0.05, "a match within this share of its search box's edge found no optimum inside the "
         "box: tracking is lost", ge=0, lt=1)
@@ -874,7 +879,7 @@ BASIC_FIELDS = frozenset({
 EXPERT_FIELDS = frozenset({
     "input.jump_slack", "input.turn_slack",
     "front_end.track_inlier_slope", "front_end.curvature_step", "front_end.window_margin",
-    "front_end.stale_turn_window", "front_end.degenerate_information",
+    "front_end.stale_turn_window", "front_end.stale_motion", "front_end.degenerate_information",
     "front_end.odometry_gate_share", "front_end.odometry_gate_fit",
     "front_end.odometry_gate_explained", "front_end.odometry_gate_distance",
     "front_end.previous_scan_gain", "front_end.previous_scan_fit",

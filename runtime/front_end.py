@@ -125,6 +125,11 @@ class FrontEnd:
         # The pose (in the keyframe's frame) of the scan that brought that reading: odometry's
         # motion is predicted from there (docs/method.md §6.1).
         self.odometry_rel = np.zeros(3)
+        # Odometry read less often than the scans: scans since the last new reading, how many
+        # that reading took to come, and its motion per scan (docs/method.md §6.1).
+        self.stale_scans = 0
+        self.reading_scans = 0
+        self.reading_step = np.zeros(3)
         self.weak = False  # a match since the last node was replaced by odometry
         self.lost_matches = 0
         self.overruled_odometry = 0  # matches the gate refused that the scans upheld
@@ -439,20 +444,29 @@ class FrontEnd:
     def _prediction(self, odometry):
         """Where the scan's predicted pose starts (in the keyframe's frame), the motion added
         to it, and whether odometry brought a new reading. A new reading predicts odometry's
-        motion since its last new one, from the scan that brought that one; the same reading
-        again predicts no motion from the last scan. Odometry read less often than the scans
-        (MIT-CSAIL's, the same for several scans, then caught up at once) says nothing of the
-        motion in between, which the scans followed: its catching up must not count that
-        twice. Without odometry: the last motion the scans showed, continued."""
+        motion since its last new one, from the scan that brought that one: odometry read
+        less often than the scans (the same reading for several scans, then caught up at
+        once) must not count twice the motion the scans followed in between. The same reading
+        again predicts, from the last scan, the translation per scan the last new reading
+        showed while fewer scans have passed than that reading took to come (``stale_motion``),
+        else no motion: a reading that came at every scan repeats only at rest. Without
+        odometry: the last motion the scans showed, continued (docs/method.md §6.1)."""
         if odometry is None:  # scans only, or a reading the inbox dropped (docs/runtime.md
             self.have_odometry = False  # §7): the next reading starts odometry afresh
             return self.rel, self.motion, False
         odometry = np.asarray(odometry, np.float64)
         if self.have_odometry and np.array_equal(odometry, self.last_odometry):
+            self.stale_scans += 1
+            if self.config.front_end.stale_motion and self.stale_scans < self.reading_scans:
+                return self.rel, self.reading_step, False
             return self.rel, np.zeros(3), False
         if not self.have_odometry:  # the first reading: odometry starts here
             self.odometry_rel[:] = self.rel
+            self.stale_scans = 0
         delta = odometry_motion(odometry, self.last_odometry, self.have_odometry)
+        self.reading_scans = self.stale_scans + 1
+        self.reading_step[:2] = delta[:2] / self.reading_scans
+        self.stale_scans = 0
         self.have_odometry = True
         return self.odometry_rel, delta, True
 
@@ -479,6 +493,8 @@ class FrontEnd:
                 "submap_nodes": self._submap_nodes[: self._n_submap].copy(),
                 "submap_poses": self._submap_poses[: self._n_submap].copy(),
                 "odometry_rel": self.odometry_rel.copy(),
+                "stale_scans": self.stale_scans, "reading_scans": self.reading_scans,
+                "reading_step": self.reading_step.copy(),
                 "previous_points": self._previous.points.copy()}
 
     def restore(self, state: dict) -> None:
@@ -503,6 +519,14 @@ class FrontEnd:
         self.keyframe = int(state["keyframe"])
         # a session saved before stale readings were told apart predicts from its last scan
         self.odometry_rel[:] = state.get("odometry_rel", self.rel)
+        # (saved before stale readings continued a motion: none continued until a new reading)
+        self.stale_scans = int(state.get("stale_scans", 0))
+        self.reading_scans = int(state.get("reading_scans", 0))
+        step = np.asarray(state.get("reading_step", np.zeros(3)), np.float64)
+        if step.shape != (3,) or not np.all(np.isfinite(step)) or min(self.stale_scans,
+                                                                      self.reading_scans) < 0:
+            raise ValueError("the stale readings' motion is not one this front end keeps")
+        self.reading_step[:] = step
         if self.keyframe >= 0 and not 0 <= self.keyframe < n:
             raise ValueError(f"keyframe {self.keyframe} is not a stored node")
         members = state.get("submap_nodes", np.zeros(0, np.int64))

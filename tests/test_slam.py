@@ -522,3 +522,61 @@ def test_a_match_counted_until_it_cannot_be_disowned_gets_the_verdict_of_full_co
             for fit in range(n + 1):
                 beatable = any(p / n - fit / n > gain for p in range(fit, n + 1))
                 assert beatable == (fit < k), (gain, n, fit, k)
+
+
+def _corridor_with_stale_odometry(config, period=4):
+    """A plain corridor 2 m wide and 40 m long, driven straight at 0.1 m a scan with exact
+    odometry read every ``period`` scans (the same reading in between, as a robot whose
+    odometry comes less often than its scans logs it). The error (m) of each scan's motion
+    from the one before, on the trajectory."""
+    world = np.array([[-2.0, y, 38.0, y] for y in (-1.0, 1.0)])
+    path = np.array([[0.1 * k, 0.0, 0.0] for k in range(60)])
+    slam = GraphSlam(config, seed=0)
+    rng = np.random.default_rng(0)
+    scan = PointScan(len(ANGLES))
+    for k in range(len(path)):
+        scan.set_ranges(scan_at(world, path[k], ANGLES, 12.0, 0.01, rng), ANGLES, 0.05, 12.0)
+        slam.step(scan, path[k - k % period], float(k))
+    _, poses = slam.trajectory()
+    steps = between(poses[1:], poses[:-1])  # each scan in the frame of the one before
+    return slam.front_end, np.hypot(steps[:, 0] - 0.1, steps[:, 1])
+
+
+def test_a_stale_reading_continues_the_last_readings_motion_along_a_corridor():
+    """Along a plain corridor the scans cannot tell how far the robot went: the prediction's
+    position stands in along the axis (the degeneracy test). With odometry read every fourth
+    scan, a stale reading that predicted no motion held three scans in four still and put
+    the whole motion into the fourth (the simulator's robot effects: 0.045 m of error a
+    scan). A stale reading now continues the translation per scan the last new reading
+    showed (``stale_motion``; docs/method.md §6.1), so every scan moves its 0.1 m."""
+    fe, errors = _corridor_with_stale_odometry(
+        override(SlamConfig(), {"front_end.stale_motion": False}))
+    assert fe.degenerate_matches > 20
+    assert errors.max() > 0.15, errors
+    fe, errors = _corridor_with_stale_odometry(SlamConfig())
+    assert fe.degenerate_matches > 20
+    assert errors[4:].max() < 0.03 and errors[4:].mean() < 0.01, errors  # from the 1st reading on
+
+
+def test_a_repeated_reading_at_rest_predicts_no_motion():
+    """Odometry read at every scan repeats a reading only when the robot stands: the last new
+    reading took one scan to come, so a repeat continues nothing and every prediction at
+    rest is the last scan's pose."""
+    world = np.array([[-2.0, y, 38.0, y] for y in (-1.0, 1.0)] + [[-2.0, -1.0, -2.0, 1.0]])
+    slam = GraphSlam(SlamConfig(), seed=0)
+    fe = slam.front_end
+    guesses = {}
+    align = fe.matcher.align_scans
+
+    def recording(scan_, reference, guess=None, window=None):
+        guesses.setdefault(fe.n_scans, (guess.copy(), fe.rel.copy()))
+        return align(scan_, reference, guess, window)
+
+    fe.matcher.align_scans = recording
+    scan = PointScan(len(ANGLES))
+    moving = [[0.1 * k, 0.0, 0.0] for k in range(10)]
+    for k, pose in enumerate(moving + [moving[-1]] * 10):
+        scan.set_ranges(scan_at(world, pose, ANGLES, 12.0, 0.0), ANGLES, 0.05, 12.0)
+        slam.step(scan, np.array(pose), float(k))
+    assert all(np.array_equal(*guesses[k]) for k in range(10, 20))
+    assert not any(np.array_equal(*guesses[k]) for k in range(2, 10))
