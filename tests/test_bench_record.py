@@ -8,7 +8,7 @@ import signal
 import subprocess
 import sys
 
-from swarmslam.bench.record import Watch, other_processes, save_results
+from swarmslam.bench.record import Watch, other_processes, save_results, source_commit
 
 
 def test_the_json_records_the_code_the_machine_and_the_conditions(tmp_path):
@@ -36,3 +36,25 @@ def test_another_benchmark_running_beside_it_is_seen():
         assert Watch().stop()["shared_machine"] is True
     finally:
         os.kill(pid, signal.SIGKILL)
+
+
+def test_uncommitted_changes_count_only_in_the_sources(tmp_path):
+    """A benchmark's own results or the docs changed since the commit leave its figures the
+    commit's; a changed source file does not."""
+    def git(*args):
+        subprocess.run(["git", "-C", str(tmp_path), *args], check=True, capture_output=True)
+
+    for name in ("runtime/core.py", "bench-results/slam.json", "docs/method.md"):
+        (tmp_path / name).parent.mkdir(exist_ok=True)
+        (tmp_path / name).write_text("1\n")
+    git("init", "-q")
+    git("add", "-A")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-q", "-m", "x")
+    commit, dirty = source_commit(tmp_path)
+    assert re.fullmatch(r"[0-9a-f]{40}", commit) and dirty is False
+    (tmp_path / "bench-results/slam.json").write_text("2\n")
+    (tmp_path / "docs/method.md").write_text("2\n")
+    assert source_commit(tmp_path) == (commit, False)
+    (tmp_path / "runtime/core.py").write_text("2\n")
+    assert source_commit(tmp_path) == (commit, True)
+    assert source_commit(tmp_path / "runtime" / "nowhere") == (None, None)

@@ -1,5 +1,5 @@
 """What every benchmark's JSON records beside its figures (``meta``), so a figure can be traced
-to the code, the machine and the conditions that made it: the commit (and whether the tree
+to the code, the machine and the conditions that made it: the commit (and whether its sources
 had uncommitted changes), the date, the command line, the CPU model and core count, the
 Python, numpy and numba versions, and whether another benchmark (or test run) shared the
 machine while it ran — sampled every few seconds, since speed figures taken beside another
@@ -41,18 +41,24 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
-def source_commit() -> tuple[str | None, bool | None]:
-    """The git commit of the sources that run, and whether they differ from it (None, None
-    when they are not a git checkout: an installed copy)."""
-    root = Path(__file__).resolve().parent.parent.parent
+# What a benchmark runs: a change elsewhere (its own results, the docs, the tests) leaves the
+# figures as the commit's code makes them.
+SOURCES = ("runtime", "hardware", "swarmslam_sim", "scripts", "worlds", "pyproject.toml")
+
+
+def source_commit(root: Path | None = None) -> tuple[str | None, bool | None]:
+    """The git commit of the sources that run, and whether they differ from it — the
+    package folders and pyproject.toml, not the results or the docs (None, None when they
+    are not a git checkout: an installed copy). ``root``: the checkout (default: this one)."""
+    root = Path(__file__).resolve().parent.parent.parent if root is None else Path(root)
     try:
         head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True,
                               text=True, timeout=10)
         if head.returncode != 0:
             return None, None
         status = subprocess.run(["git", "-C", str(root), "status", "--porcelain",
-                                 "--untracked-files=no"], capture_output=True, text=True,
-                                timeout=30)
+                                 "--untracked-files=no", "--", *SOURCES], capture_output=True,
+                                text=True, timeout=30)
         return head.stdout.strip(), bool(status.stdout.strip())
     except (OSError, subprocess.TimeoutExpired):
         return None, None
