@@ -242,6 +242,12 @@ class SensorConfig(Section):
     max_range: float = _setting(80.0, "m: readings at or beyond are 'no return'", gt=0)
     max_points: int = _setting(1440, "points kept per scan (≥ samples per rotation)", ge=1,
                               le=100_000)
+    sweep_seconds: float = _setting(
+        0.0, "s from a scan's first beam to its last, the beams in that order (a rotating "
+        "scanner's sweep; 0: all at once); each point is moved to where the robot was at the "
+        "stamp (docs/method.md §6.1, 'The sweep')", ge=0, le=1.0)
+    sweep_stamp: float = _setting(1.0, "where in the sweep a scan's stamp falls: 0 at its first "
+                                  "beam, 1 at its last", ge=0, le=1)
 
 
 @dataclass(frozen=True)
@@ -718,9 +724,10 @@ def rplidar_points(samples_per_second: float, scan_hz: float) -> int:
 
 def _rplidar(model: str) -> SlamConfig:
     sps, hz, reach = RPLIDAR_MODELS[model]
+    # A rotation is one sweep, stamped at its end (swarmslam.hardware.driver).
     return override(SlamConfig(), {"sensor.name": f"rplidar-{model}", "sensor.max_range": reach,
                                    "sensor.max_points": rplidar_points(sps, hz),
-                                   "map.max_range": reach})
+                                   "sensor.sweep_seconds": 1.0 / hz, "map.max_range": reach})
 
 
 def simulated(lidar: str = "rplidar-a1", beams: int | None = None, min_range: float | None = None,

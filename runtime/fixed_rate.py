@@ -236,7 +236,7 @@ class SlamRuntime:
         ``scan``: a :class:`PointScan`, or an (N, 2) array of points (robot frame, m);
         ``odometry``: the robot's (x, y, θ) at the scan, if known."""
         if isinstance(scan, PointScan):
-            self.inbox.put_points(scan.buffer, scan.count, stamp, odometry)
+            self.inbox.put_points(scan.buffer, scan.count, stamp, odometry, scan.sweep)
         else:
             points = real_array("scan", scan, 2)
             self.inbox.put_points(points, points.shape[0], stamp, odometry)

@@ -27,6 +27,7 @@ from swarmslam.runtime.pose import between, compose, interpolate
 from swarmslam.runtime.pose_graph import ODOMETRY, PoseGraph, information_from_sigma
 from swarmslam.runtime.scan import PointScan
 from swarmslam.runtime.scan_matcher import ScanMatcher
+from swarmslam.runtime.sweep_motion import SweepMotion
 
 CAPACITY_STATUS = "capacity reached: localising against the last node, map frozen"
 TRAJECTORY_STATUS = "trajectory capacity reached: poses no longer recorded"
@@ -103,6 +104,11 @@ class FrontEnd:
         g = config.matcher.guess_window  # a lost match's box after a stale reading
         self._turn_window = np.array([g[0], g[1], max(g[2], config.front_end.stale_turn_window)])
         self.reference = self.matcher.new_reference()
+        self.sweep = SweepMotion(config.sensor, points)
+        # The last scan's stamp, and the time since the one before: what the motion the sweep
+        # is undistorted by was over.
+        self.last_stamp = math.nan
+        self.last_interval = math.nan
         self._node_scan = PointScan(points)
         self._submap = PointScan(points * submap_nodes)
         # The submap's nodes and the poses that placed them when it was built (the keyframe's
@@ -158,7 +164,14 @@ class FrontEnd:
         base, step, news = self._prediction(odometry)
         self.stale = odometry is not None and not news  # the same reading as before
         guess = compose(base, step)
+        raw = scan
+        if self.sweep.moving:  # the sweep seen from the stamp's pose, by the last motion
+            scan = self.sweep.undistort(raw, self.motion, self.last_interval)
         match = self.matcher.align_scans(scan, self.reference, guess)  # Alg. 5
+        if self.sweep.moving:  # ... then by the match's own motion, the match settled again
+            scan = self.sweep.undistort(raw, between(match.pose, self.rel),
+                                        stamp - self.last_stamp)
+            match = self.matcher.settle(scan, self.reference, match)
         self.evaluations = match.evaluations
         pose = match.pose
         self.degeneracy = None
@@ -173,6 +186,8 @@ class FrontEnd:
         if news:
             self.odometry_rel[:] = pose
         node_added = self.insert_node(scan, stamp)  # Alg. 6
+        self.last_interval = stamp - self.last_stamp
+        self.last_stamp = stamp
         self._record(stamp)
         self._remember(scan)
         return Tracking(self.pose(), node_added, self.keyframe, match.error)
@@ -288,6 +303,7 @@ class FrontEnd:
         self.graph.add_node(self.initial_pose, stamp)
         self.nodes.store(0, scan)
         self.keyframe = 0
+        self.last_stamp = stamp
         self.rebuild_reference()
         if odometry is not None:
             self.last_odometry[:] = odometry
@@ -495,6 +511,7 @@ class FrontEnd:
                 "odometry_rel": self.odometry_rel.copy(),
                 "stale_scans": self.stale_scans, "reading_scans": self.reading_scans,
                 "reading_step": self.reading_step.copy(),
+                "last_stamp": self.last_stamp, "last_interval": self.last_interval,
                 "previous_points": self._previous.points.copy()}
 
     def restore(self, state: dict) -> None:
@@ -527,6 +544,10 @@ class FrontEnd:
                                                                       self.reading_scans) < 0:
             raise ValueError("the stale readings' motion is not one this front end keeps")
         self.reading_step[:] = step
+        # (saved before the sweep was undistorted: the trajectory's last stamp; no motion's
+        # interval, so the next scan's first pass leaves its sweep as it came)
+        self.last_stamp = float(state.get("last_stamp", self.scan_stamp[k - 1] if k else math.nan))
+        self.last_interval = float(state.get("last_interval", math.nan))
         if self.keyframe >= 0 and not 0 <= self.keyframe < n:
             raise ValueError(f"keyframe {self.keyframe} is not a stored node")
         members = state.get("submap_nodes", np.zeros(0, np.int64))

@@ -79,15 +79,22 @@ class ScanInbox:
             if ranges.shape[0] != angles.shape[0]:
                 raise ValueError(f"{ranges.shape[0]} ranges but {angles.shape[0]} angles")
             n = ranges_to_points(ranges, angles, self.min_range, self.max_range,
-                                 self._pending.buffer)
+                                 self._pending.buffer, self._pending.sweep)
             return self._accept(n, stamp, odometry)
 
-    def put_points(self, points, count: int, stamp: float, odometry=None) -> bool:
-        """Hand over ``points[:count]`` (robot frame, metres; an (N, 2) array). Points that are
-        not finite are dropped; a scan with none left is refused (False)."""
+    def put_points(self, points, count: int, stamp: float, odometry=None, sweep=None) -> bool:
+        """Hand over ``points[:count]`` (robot frame, metres; an (N, 2) array) in the order the
+        scanner took them; ``sweep``: each one's place in its sweep, 0 (first beam) to 1 (last),
+        if known (else their order gives it). Points that are not finite, or whose place is not
+        in [0, 1], are dropped; a scan with none left is refused (False)."""
         points = real_array("points", points, 2)
+        if sweep is not None:
+            sweep = real_array("sweep", sweep, 1)
+            if sweep.shape[0] < min(int(count), points.shape[0]):
+                raise ValueError(f"sweep: {sweep.shape[0]} places for {count} points")
         with self._lock:
-            n = finite_points(points, min(int(count), points.shape[0]), self._pending.buffer)
+            n = finite_points(points, min(int(count), points.shape[0]), self._pending.buffer,
+                              sweep, self._pending.sweep)
             return self._accept(n, stamp, odometry)
 
     def _accept(self, n, stamp, odometry) -> bool:
@@ -154,6 +161,7 @@ class ScanInbox:
                 return False, False, 0.0
             n = self._pending.count
             scan.buffer[:n] = self._pending.buffer[:n]
+            scan.sweep[:n] = self._pending.sweep[:n]
             scan.count = n
             odometry_out[:] = self._odometry
             self._full = False

@@ -19,16 +19,26 @@ def valid_reading(r, min_range, max_range):
     return math.isfinite(r) and not (r <= min_range or r >= max_range)
 
 
+@njit(cache=True, inline="always")
+def sweep_place(i, beams):
+    """Beam ``i``'s place in a sweep of ``beams`` beams taken in order: 0 the first, 1 the
+    last."""
+    return i / (beams - 1) if beams > 1 else 1.0
+
+
 @njit(cache=True)
-def ranges_to_points(ranges, angles, min_range, max_range, out):
+def ranges_to_points(ranges, angles, min_range, max_range, out, sweep=None):
     """Write the valid beams' end points into ``out`` (capacity × 2); return how many.
 
     A reading is valid when finite and ``min_range < r < max_range``. Beams beyond the
-    buffer's capacity are ignored (the caller sized the buffer for its scanner).
+    buffer's capacity are ignored (the caller sized the buffer for its scanner). ``sweep``
+    (capacity long), if given, gets each point's place in the sweep (:func:`sweep_place`):
+    the beams are in the order the scanner took them.
     """
     n = 0
     cap = out.shape[0]
-    for i in range(ranges.shape[0]):
+    beams = ranges.shape[0]
+    for i in range(beams):
         r = ranges[i]
         a = angles[i]
         if not (valid_reading(r, min_range, max_range) and math.isfinite(a)):
@@ -37,6 +47,8 @@ def ranges_to_points(ranges, angles, min_range, max_range, out):
             break
         out[n, 0] = r * math.cos(a)
         out[n, 1] = r * math.sin(a)
+        if sweep is not None:
+            sweep[n] = sweep_place(i, beams)
         n += 1
     return n
 
@@ -51,13 +63,14 @@ def beam_directions(angles, out):
 
 
 @njit(cache=True)
-def directions_to_points(ranges, directions, min_range, max_range, out):
+def directions_to_points(ranges, directions, min_range, max_range, out, sweep=None):
     """:func:`ranges_to_points` for beams along ``directions`` (:func:`beam_directions`):
     the same points, bit for bit, without a cosine and a sine per beam (a simulated scan's
     360 beams: 9 of a step's ~120 µs, docs/experiments/2026-11-26-tracking-budget.md)."""
     n = 0
     cap = out.shape[0]
-    for i in range(ranges.shape[0]):
+    beams = ranges.shape[0]
+    for i in range(beams):
         r = ranges[i]
         c = directions[i, 0]
         s = directions[i, 1]
@@ -68,25 +81,37 @@ def directions_to_points(ranges, directions, min_range, max_range, out):
             break
         out[n, 0] = r * c
         out[n, 1] = r * s
+        if sweep is not None:
+            sweep[n] = sweep_place(i, beams)
         n += 1
     return n
 
 
 @njit(cache=True)
-def finite_points(points, count, out):
+def finite_points(points, count, out, sweep=None, sweep_out=None):
     """Copy the finite ones among ``points[:count]`` into ``out`` (at most its capacity, in
-    order); return how many."""
+    order); return how many. ``sweep_out``, if given, gets each point's place in its sweep:
+    ``sweep[i]`` when given (a point whose place is not a number in [0, 1] is dropped), else
+    the point's own place among ``points[:count]`` (:func:`sweep_place`)."""
     n = 0
     cap = out.shape[0]
-    for i in range(min(count, points.shape[0])):
+    total = min(count, points.shape[0])
+    for i in range(total):
         x = points[i, 0]
         y = points[i, 1]
         if not (math.isfinite(x) and math.isfinite(y)):
             continue
+        place = sweep_place(i, total)
+        if sweep is not None:
+            place = sweep[i]
+            if not 0.0 <= place <= 1.0:  # (NaN fails too)
+                continue
         if n >= cap:
             break
         out[n, 0] = x
         out[n, 1] = y
+        if sweep_out is not None:
+            sweep_out[n] = place
         n += 1
     return n
 
@@ -101,6 +126,9 @@ class PointScan:
         if capacity < 1:
             raise ValueError(f"scan capacity must be >= 1, got {capacity}")
         self.buffer = np.zeros((capacity, 2), dtype=np.float64)
+        # Each point's place in its sweep, 0 (the first beam) to 1 (the last), when it came
+        # from a scanner's beams; what moves it to the stamp's pose (runtime/sweep_motion.py).
+        self.sweep = np.ones(capacity, dtype=np.float64)
         self.count = 0
 
     @property
@@ -131,7 +159,8 @@ class PointScan:
                 f"scan has {ranges.shape[0]} beams but the buffer holds {self.capacity}; "
                 "raise the scan capacity"
             )
-        self.count = ranges_to_points(ranges, angles, min_range, max_range, self.buffer)
+        self.count = ranges_to_points(ranges, angles, min_range, max_range, self.buffer,
+                                      self.sweep)
         if self.count == 0:
             raise ValueError(
                 f"all {ranges.shape[0]} readings are invalid "
@@ -140,7 +169,8 @@ class PointScan:
         return self
 
     def set_points(self, points):
-        """Fill from points ``(N, 2)`` already in the sensor frame."""
+        """Fill from points ``(N, 2)`` already in the sensor frame, in the order the scanner
+        took them (their places in the sweep)."""
         points = np.asarray(points, dtype=np.float64)
         if points.ndim != 2 or points.shape[1] != 2:
             raise ValueError(f"points must have shape (N, 2); got {points.shape}")
@@ -150,8 +180,7 @@ class PointScan:
             raise ValueError("empty scan: no finite points")
         if n > self.capacity:
             raise ValueError(f"{n} points exceed the scan capacity {self.capacity}")
-        self.buffer[:n] = points[finite]
-        self.count = n
+        self.count = finite_points(points, points.shape[0], self.buffer, None, self.sweep)
         return self
 
     @classmethod

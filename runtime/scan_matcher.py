@@ -212,6 +212,17 @@ def _polish(settings, field, meta, pts, n, box, out):
 
 
 @njit(cache=True)
+def _settle(settings, field, meta, pts, n, box, x, y, t, out):
+    """:func:`_polish` from ``(x, y, t)``: ``out`` gets the pose it settles at and its λ."""
+    out[R_X] = x
+    out[R_Y] = y
+    out[R_T] = t
+    out[R_LAMBDA] = scan_to_scan_error(field, meta, pts, n, 1, x, y, t, int(settings[S_KERNEL]))
+    out[R_EVALUATIONS] = 1.0
+    _polish(settings, field, meta, pts, n, box, out)
+
+
+@njit(cache=True)
 def _stride(n, stride, points):
     """Every how many of ``n`` points a stage scores: ``stride``, or more so that it scores at
     most about ``points`` of them (0: ``stride``)."""
@@ -325,6 +336,7 @@ class ScanMatcher:
         s[S_POLISH_EVALS] = c.polish_evaluations
         self.settings = s
         self._out = np.zeros(N_OUT)
+        self._settled = np.zeros(N_OUT)
         self._box = np.zeros((2, 3))
         self._hessian = np.zeros((3, 3))
 
@@ -480,6 +492,20 @@ class ScanMatcher:
             iterations=int(out[R_ITERATIONS]),
             evaluations=int(out[R_EVALUATIONS]),
         )
+
+    def settle(self, scan: PointScan, reference: ReferenceMaps, match: MatchResult
+               ) -> MatchResult:
+        """``match`` (the last :meth:`align_scans`) settled again by the compass search alone,
+        for ``scan`` changed a little since (its sweep undistorted by the match's own motion):
+        in the same box, without a swarm, and without counting towards the threshold."""
+        out = self._settled
+        pose = match.pose
+        _settle(self.settings, reference.field, reference.meta, scan.buffer, scan.count,
+                self._box, float(pose[0]), float(pose[1]), float(pose[2]), out)
+        return MatchResult(pose=out[R_X : R_T + 1].copy(), error=float(out[R_LAMBDA]),
+                           scan_error=float(out[R_LAMBDA]), used_map=match.used_map,
+                           iterations=match.iterations,
+                           evaluations=match.evaluations + int(out[R_EVALUATIONS]))
 
     def at_box_edge(self, pose, margin: float) -> bool:
         """The last match's ``pose`` ended within ``margin`` (a share of the half-width) of its

@@ -306,8 +306,10 @@ def _simlog(args) -> int:
         raise ValueError(f"--seconds must be > 0, got {args.seconds}")
     if not args.rate > 0:
         raise ValueError(f"--rate must be > 0, got {args.rate}")
-    effects = replace(EFFECTS[args.effects], **{
-        name: getattr(args, name) for name in EFFECT_HELP if getattr(args, name) is not None})
+    given = {name: getattr(args, name) for name in EFFECT_HELP if getattr(args, name) is not None}
+    if "sweep_seconds" in given:  # a sweep named is the sweep, a spinning scanner's too
+        given["sweep_turn"] = False
+    effects = replace(EFFECTS[args.effects], **given)
     r = write_simlog(args.out, args.site, args.seed, args.scanner, args.rate, args.odometry,
                      args.format, seconds=args.seconds, effects=effects,
                      max_turn=args.max_turn, turning=args.effects)
@@ -315,6 +317,9 @@ def _simlog(args) -> int:
           f"{r['odometry_error_end_m']:.2f} m / {r['odometry_error_end_deg']:.1f} deg off at "
           f"the end; {r['relations_count']} relations")
     print(f"wrote {r['log']}, {r['relations']}, {r['truth']}, {r['world']}")
+    if r["sweep_seconds"] > 0:
+        print(f"its scanner sweeps for {r['sweep_seconds']:.4g} s: replay it with "
+              f"sensor.sweep_seconds = {r['sweep_seconds']:.6g} ([sensor] in a --config file)")
     return 0
 
 

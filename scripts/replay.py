@@ -44,7 +44,7 @@ def robot_frame_scan(record, scan: PointScan) -> PointScan:
     """A laser record's valid points, moved from the laser's frame into the robot's (none when
     no beam returned: the runtime refuses and counts such a scan)."""
     scan.count = ranges_to_points(record.ranges, record.angles, 0.0, record.max_range,
-                                  scan.buffer)
+                                  scan.buffer, scan.sweep)
     if scan.count and np.any(record.laser_offset):
         n = scan.count
         pts = compose(record.laser_offset, np.c_[scan.buffer[:n], np.zeros(n)])

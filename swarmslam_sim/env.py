@@ -263,7 +263,7 @@ class SwarmSlamEnv(gym.Env):
         ranges = self.lidar.scan(self.true_pose, self.np_random)
         scan = self._scan
         scan.count = directions_to_points(ranges, self.lidar.directions, lc.min_range,
-                                          lc.max_range, scan.buffer)
+                                          lc.max_range, scan.buffer, scan.sweep)
         if self.slam is not None and scan.count > 0:
             t0 = time.perf_counter()
             result = self.runtime.process(scan, self.odometry, self.steps * self.dt)

@@ -67,6 +67,9 @@ class Effects:
     # from where the robot was then. A spinning RPLidar's is its whole turn; a SICK LMS200's
     # 13 ms (1°) or 27 ms (0.5°, two interlaced sweeps).
     sweep_seconds: float = 0.0
+    # A scanner whose beams go all the way round (an RPLidar) sweeps for its whole turn, one
+    # turn per scan (1 / the scan rate), whatever ``sweep_seconds`` says (:func:`sweep_of`).
+    sweep_turn: bool = False
     range_bias: float = 0.0  # m: std of each beam's own fixed range offset
     # Probability that a beam whose footprint (BEAM_WIDTH) spans a depth edge reads somewhere
     # between the two surfaces (a mixed pixel) instead of the nearer one.
@@ -85,7 +88,8 @@ class Effects:
 
 BEAM_WIDTH = math.radians(0.5)  # a beam's footprint across (a SICK's is 0.25–0.5°)
 MIXED_EDGE = 0.3  # m: a depth step across the footprint this large is an edge
-SWEEP_GROUPS = 16  # beams cast together from one pose of a moving sweep
+SWEEP_GROUPS = 16  # beams cast together from one pose of a moving sweep, at least ...
+SWEEP_GROUP_SECONDS = 0.002  # ... and as many more as keep a group within this long
 PERSON_RADIUS = 0.25  # m
 PERSON_SPEED = 1.0  # m/s
 PERSON_OFFSET = 0.5  # m at most beside the route's centre line
@@ -95,8 +99,18 @@ PERSON_OFFSET = 0.5  # m at most beside the route's centre line
 EFFECTS = {
     "none": Effects(),
     "robot": Effects(odometry_period=0.8, odometry_latency=0.02, stamp_jitter=0.002,
-                     sweep_seconds=0.027, range_bias=0.005, mixed_pixels=0.5, people=3),
+                     sweep_seconds=0.027, sweep_turn=True, range_bias=0.005, mixed_pixels=0.5,
+                     people=3),
 }
+
+
+def sweep_of(effects: Effects, lidar: LidarConfig, rate_hz: float) -> float:
+    """s from a scan's first beam to its last, as ``effects`` and the scanner make it: a full
+    turn of beams swept for the whole turn when ``sweep_turn`` (an RPLidar at 5.5 Hz: 0.18 s),
+    else ``sweep_seconds``. What a SLAM run on the log is told (``sensor.sweep_seconds``)."""
+    if effects.sweep_turn and lidar.fov >= 2 * math.pi - 1e-9:
+        return 1.0 / rate_hz
+    return effects.sweep_seconds
 @dataclass(frozen=True)
 class Turning:
     """How the robot turns: at most ``max_rate`` rad/s; beyond a heading error of ``pivot``
@@ -299,8 +313,9 @@ def run_survey(where: Site, lidar: str | LidarConfig = "sick-0.5", rate_hz: floa
     odo = odometry_readings(odo_fine, stamps, step, effects)
     people = People(where.route, effects.people, fx)
     bias = fx.normal(0.0, effects.range_bias, config.beams) if effects.range_bias else None
+    sweep = sweep_of(effects, config, rate_hz)
     for k in range(len(poses)):
-        r = sweep_scan(scanner, fine, stamps[k], step, effects, people, fx)
+        r = sweep_scan(scanner, fine, stamps[k], step, sweep, effects, people, fx)
         if config.noise_std > 0:
             r += config.noise_std * rng.standard_normal(config.beams)
         if bias is not None:
@@ -333,17 +348,18 @@ def odometry_readings(odo_fine, stamps, step: float, effects: Effects) -> np.nda
     return out
 
 
-def sweep_scan(scanner: Lidar, fine, stamp: float, step: float, effects: Effects,
+def sweep_scan(scanner: Lidar, fine, stamp: float, step: float, sweep: float, effects: Effects,
                people: "People", fx: np.random.Generator) -> np.ndarray:
-    """One scan's exact ranges with the geometric effects: the sweep's beams from the poses
-    the robot had when each was taken, mixed pixels at depth edges, people in the way."""
+    """One scan's exact ranges with the geometric effects: the beams of a ``sweep`` s long
+    from the poses the robot had when each was taken, mixed pixels at depth edges, people in
+    the way."""
     angles, n = scanner.angles, scanner.config.beams
     r = np.empty(n)
-    edges = np.linspace(0, n, min(SWEEP_GROUPS, n) + 1).astype(int) if effects.sweep_seconds \
-        else np.array([0, n])
+    groups = max(SWEEP_GROUPS, math.ceil(sweep / SWEEP_GROUP_SECONDS))
+    edges = np.linspace(0, n, min(groups, n) + 1).astype(int) if sweep else np.array([0, n])
     for a, b in zip(edges[:-1], edges[1:]):
         middle = 0.5 * (a + b - 1) / max(n - 1, 1)  # the group's share through the sweep
-        pose = pose_at(fine, stamp - effects.sweep_seconds * (1.0 - middle), step)
+        pose = pose_at(fine, stamp - sweep * (1.0 - middle), step)
         scanner.cast_angles(pose, angles[a:b], r[a:b])
         if effects.mixed_pixels:
             mixed_pixels(scanner, pose, angles[a:b], r[a:b], effects.mixed_pixels, fx)

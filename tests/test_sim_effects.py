@@ -16,12 +16,15 @@ from swarmslam.relations import read_relations
 from swarmslam.replay import replay_run
 from swarmslam_sim.lidar import Lidar, LidarConfig
 from swarmslam_sim.survey import (
+    EFFECTS,
     PERSON_RADIUS,
+    SCANNERS,
     Effects,
     People,
     mixed_pixels,
     run_survey,
     site,
+    sweep_of,
 )
 
 EXACT = LidarConfig(181, math.pi, 0.05, 80.0, 5.0, 0.0, 0.0)  # no noise, no dropout
@@ -86,6 +89,14 @@ def test_a_moving_sweep_takes_each_beam_from_where_the_robot_was(plain):
                                                             first)
     assert off(moving.ranges[k], plain.ranges[k], last) < 0.5 * off(moving.ranges[k], earlier,
                                                                    last)
+
+
+def test_a_spinning_scanners_robot_sweep_is_its_whole_rotation():
+    robot = EFFECTS["robot"]
+    assert sweep_of(robot, SCANNERS["rplidar-a1"], 5.5) == pytest.approx(1 / 5.5)
+    assert sweep_of(robot, SCANNERS["sick-0.5"], 4.7) == robot.sweep_seconds == 0.027
+    assert sweep_of(EFFECTS["none"], SCANNERS["rplidar-a1"], 5.5) == 0.0
+    assert sweep_of(Effects(sweep_seconds=0.05), SCANNERS["rplidar-a2"], 10.0) == 0.05
 
 
 def test_range_bias_is_each_beams_own_and_the_same_in_every_scan(plain):

@@ -188,10 +188,13 @@ def run_case(case: Case, work: Path, config: SlamConfig | None = None, floor: bo
               "metres": round(made["metres"], 1),
               "odometry_error_end_m": made["odometry_error_end_m"]}
     for label, oracle in (("", False), ("floor_", True)) if floor else (("", False),):
-        run_config, hook = config, None
+        # The scanner as its user would configure it: how long its sweep takes.
+        run_config = override(config or SlamConfig(),
+                              {"sensor.sweep_seconds": made["sweep_seconds"]})
+        hook = None
         if oracle:  # a perfect match is never lost: nothing for the gate or the inlier test
-            run_config = override(config or SlamConfig(), {"front_end.odometry_gate": None,
-                                                           "front_end.min_track_inliers": 0.0})
+            run_config = override(run_config, {"front_end.odometry_gate": None,
+                                               "front_end.min_track_inliers": 0.0})
             hook = TruthOracle(stamps, truth)
         m, runtime = replay_run(log, made["relations"], None, case.use_odometry, None, None,
                                 case.seed, run_config,
