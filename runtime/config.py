@@ -244,7 +244,7 @@ class SensorConfig(Section):
                               le=100_000)
     sweep_seconds: float = _setting(
         0.0, "s from a scan's first beam to its last, the beams in that order (a rotating "
-        "scanner's sweep; 0: all at once); each point is moved to where the robot was at the "
+        "scanner's sweep; 0: all at once); each point is turned to the robot's heading at the "
         "stamp (docs/method.md §6.1, 'The sweep')", ge=0, le=1.0)
     sweep_stamp: float = _setting(1.0, "where in the sweep a scan's stamp falls: 0 at its first "
                                   "beam, 1 at its last", ge=0, le=1)

@@ -165,10 +165,10 @@ class FrontEnd:
         self.stale = odometry is not None and not news  # the same reading as before
         guess = compose(base, step)
         raw = scan
-        if self.sweep.moving:  # the sweep seen from the stamp's pose, by the last motion
+        if self.sweep.moving:  # the sweep turned to the stamp's heading, by the last turn
             scan = self.sweep.undistort(raw, self.motion, self.last_interval)
         match = self.matcher.align_scans(scan, self.reference, guess)  # Alg. 5
-        if self.sweep.moving:  # ... then by the match's own motion, the match settled again
+        if self.sweep.moving:  # ... then by the match's own turn, the match settled again
             scan = self.sweep.undistort(raw, between(match.pose, self.rel),
                                         stamp - self.last_stamp)
             match = self.matcher.settle(scan, self.reference, match)

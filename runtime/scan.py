@@ -127,7 +127,7 @@ class PointScan:
             raise ValueError(f"scan capacity must be >= 1, got {capacity}")
         self.buffer = np.zeros((capacity, 2), dtype=np.float64)
         # Each point's place in its sweep, 0 (the first beam) to 1 (the last), when it came
-        # from a scanner's beams; what moves it to the stamp's pose (runtime/sweep_motion.py).
+        # from a scanner's beams; what turns it to the stamp's heading (runtime/sweep_motion.py).
         self.sweep = np.ones(capacity, dtype=np.float64)
         self.count = 0
 

@@ -1,4 +1,4 @@
-"""A rotating scanner's sweep: each point moved to where the robot was at the scan's stamp
+"""A rotating scanner's sweep: each point turned to the robot's heading at the scan's stamp
 (runtime/sweep_motion.py, docs/method.md §6.1 "The sweep")."""
 
 import math
@@ -14,43 +14,41 @@ from swarmslam.runtime.sweep_motion import SweepMotion, undistort
 from swarmslam.runtime.warm_up import room_world, scan_at
 
 
-def _as_seen(points, places, seconds, stamp_place, v, w):
-    """What a robot moving at ``v`` (m/s, its frame at the stamp) and turning at ``w`` sees of
-    the stamp-frame ``points``, each at its place in the sweep (the model undistort inverts)."""
+def _as_seen(points, places, seconds, stamp_place, w):
+    """What a robot turning at ``w`` rad/s sees of the stamp-frame ``points``, each at its
+    place in the sweep."""
     seen = np.empty_like(points)
     for i, (p, f) in enumerate(zip(points, places)):
-        tau = (f - stamp_place) * seconds
-        pose = np.array([v[0] * tau, v[1] * tau, w * tau])
+        pose = np.array([0.0, 0.0, w * (f - stamp_place) * seconds])
         seen[i] = between(np.r_[p, 0.0], pose)[:2]
     return seen
 
 
 @pytest.mark.parametrize("stamp_place", [1.0, 0.0, 0.5])
-def test_undistort_moves_each_point_to_the_stamps_pose(stamp_place):
+def test_undistort_turns_each_point_to_the_stamps_heading(stamp_place):
     rng = np.random.default_rng(0)
     truth = rng.uniform(-6, 6, (200, 2))
     places = np.sort(rng.uniform(0, 1, 200))
-    seen = _as_seen(truth, places, 0.18, stamp_place, (0.4, -0.1), 2.0)
+    seen = _as_seen(truth, places, 0.18, stamp_place, 2.0)
     assert np.max(np.hypot(*(seen - truth).T)) > 0.1  # a 20° turn over the sweep
     out = np.empty_like(seen)
-    undistort(seen, places, len(seen), 0.4, -0.1, 2.0, 0.18, stamp_place, out)
+    undistort(seen, places, len(seen), 2.0, 0.18, stamp_place, out)
     np.testing.assert_allclose(out, truth, atol=1e-12)
 
 
-def test_the_motion_given_is_turned_into_the_stamps_frame_and_over_the_sweep_at_least():
+def test_the_turn_given_is_taken_over_the_interval_or_the_sweep_if_longer():
     sensor = SensorConfig(sweep_seconds=0.2)
     sweep = SweepMotion(sensor, 8)
     scan = PointScan(8).set_points([[1.0, 0.0], [0.0, 2.0], [-3.0, 0.5]])
     np.testing.assert_array_equal(scan.sweep[:3], [0.0, 0.5, 1.0])  # their order: the sweep's
-    # the stamp's pose 0.5 m ahead and 90° left of the last: in its own frame the robot came
-    # from its right, moving along its y at 0.5 m / 0.4 s, turning 90° / 0.4 s
-    motion = np.array([0.5, 0.0, math.pi / 2])
+    motion = np.array([0.5, 0.1, math.pi / 2])  # (its translation is not read)
     out = sweep.undistort(scan, motion, 0.4)
     expected = np.empty((3, 2))
-    undistort(scan.buffer, scan.sweep, 3, 0.0, -1.25, math.pi / 2 / 0.4, 0.2, 1.0, expected)
+    undistort(scan.buffer, scan.sweep, 3, math.pi / 2 / 0.4, 0.2, 1.0, expected)
     np.testing.assert_allclose(out.points, expected, atol=1e-12)
     assert out.count == 3 and np.array_equal(out.sweep[:3], scan.sweep[:3])
-    # a stamp 0.1 s after the last, jittered: the motion taken over the sweep's 0.2 s instead
+    assert not np.allclose(out.points, scan.points)
+    # a stamp 0.1 s after the last, jittered: the turn taken over the sweep's 0.2 s instead
     shorter = sweep.undistort(scan, motion * 0.25, 0.1).points.copy()
     np.testing.assert_allclose(shorter, sweep.undistort(scan, motion * 0.25, 0.2).points,
                                atol=1e-12)
@@ -109,7 +107,7 @@ def _heading_errors(swept, sweep_seconds, odometry=True):
 def test_a_weaving_robots_sweep_undistorted_keeps_each_scans_turn(swept, odometry):
     """Turning at 1.6 rad/s an RPLidar's 0.18 s sweep bends every wall by 17°; matched as if
     its beams were simultaneous, the scans' turns err where the robot's turn changes. Told the
-    sweep, the front end moves each point to the stamp's pose by the scans' last motion, then
+    sweep, the front end turns each point to the stamp's heading by the scans' last turn, then
     by the match's own (the match settled again), with exact odometry or none."""
     told = _heading_errors(swept, 1 / 5.5, odometry)
     untold = _heading_errors(swept, 0.0, odometry)
