@@ -53,6 +53,38 @@ def test_no_traced_memory_growth_per_match_after_warm_up():
     assert peak - before < 4096, peak - before
 
 
+def test_no_traced_memory_growth_per_undistorted_sweep_after_warm_up():
+    """A sweep's two passes (runtime/sweep_motion.py) and the settled match: nothing kept."""
+    from swarmslam.runtime.config import SensorConfig
+    from swarmslam.runtime.sweep_motion import SweepMotion
+
+    matcher = ScanMatcher(MatcherConfig(swarm=SwarmConfig(max_evaluations=100),
+                                        refine_evaluations=40))
+    sweep = SweepMotion(SensorConfig(sweep_seconds=0.18), 400)
+    ref, cur = scans()
+    reference = matcher.new_reference()
+    matcher.build_reference(ref, reference)
+    motion = np.array([0.1, 0.0, 0.3])
+
+    def undistort_and_settle(n):
+        for _ in range(n):
+            first = sweep.undistort(cur, motion, 0.18)
+            match = matcher.align_scans(first, reference, motion)
+            matcher.settle(sweep.undistort(cur, match.pose, 0.18), reference, match)
+
+    tracemalloc.start()
+    try:
+        undistort_and_settle(2000)
+        before, _ = tracemalloc.get_traced_memory()
+        tracemalloc.reset_peak()
+        undistort_and_settle(3000)
+        after, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert after - before <= 256, f"traced memory grew {after - before} B over 3000 sweeps"
+    assert peak - before < 4096, peak - before
+
+
 NRT_PROBE = textwrap.dedent(
     """
     import json, sys
