@@ -318,8 +318,9 @@ def _simlog(args) -> int:
           f"the end; {r['relations_count']} relations")
     print(f"wrote {r['log']}, {r['relations']}, {r['truth']}, {r['world']}")
     if r["sweep_seconds"] > 0:
-        print(f"its scanner sweeps for {r['sweep_seconds']:.4g} s: replay it with "
-              f"sensor.sweep_seconds = {r['sweep_seconds']:.6g} ([sensor] in a --config file)")
+        print(f"its scanner sweeps for {r['sweep_seconds']:.4g} s: a replay told so undoes "
+              f"the turn over it (sensor.sweep_seconds = {r['sweep_seconds']:.17g} under "
+              "[sensor] in a --config file)")
     return 0
 
 

@@ -25,6 +25,21 @@ def scans():
     return PointScan.from_ranges(a, ANGLES, 0.05, 12.0), PointScan.from_ranges(b, ANGLES, 0.05, 12.0)
 
 
+def traced_growth(run, warm: int, measured: int) -> tuple[int, int]:
+    """``run(warm)``, then ``run(measured)`` traced: the bytes still held after it, and the
+    most held at once during it, beyond what was held before it."""
+    tracemalloc.start()
+    try:
+        run(warm)
+        before, _ = tracemalloc.get_traced_memory()
+        tracemalloc.reset_peak()
+        run(measured)
+        after, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    return after - before, peak - before
+
+
 def test_no_traced_memory_growth_per_match_after_warm_up():
     # A small budget keeps the test quick; the per-match path is the same at any budget.
     config = MatcherConfig(swarm=SwarmConfig(max_evaluations=100), refine_evaluations=40,
@@ -39,18 +54,10 @@ def test_no_traced_memory_growth_per_match_after_warm_up():
             matcher.build_reference(ref, reference)
             matcher.align_into(cur, reference, None, out)
 
-    tracemalloc.start()
-    try:
-        match(4000)  # warm-up: compilation, numba's dispatch caches
-        before, _ = tracemalloc.get_traced_memory()
-        tracemalloc.reset_peak()
-        match(5000)
-        after, peak = tracemalloc.get_traced_memory()
-    finally:
-        tracemalloc.stop()
-    assert after - before <= 256, f"traced memory grew {after - before} B over 5000 matches"
+    grown, peak = traced_growth(match, 4000, 5000)  # warm-up: compilation, dispatch caches
+    assert grown <= 256, f"traced memory grew {grown} B over 5000 matches"
     # Transient objects (the call's arguments) exist, but never more than a few at a time.
-    assert peak - before < 4096, peak - before
+    assert peak < 4096, peak
 
 
 def test_no_traced_memory_growth_per_undistorted_sweep_after_warm_up():
@@ -72,17 +79,9 @@ def test_no_traced_memory_growth_per_undistorted_sweep_after_warm_up():
             match = matcher.align_scans(first, reference, motion)
             matcher.settle(sweep.undistort(cur, match.pose, 0.18), reference, match)
 
-    tracemalloc.start()
-    try:
-        undistort_and_settle(2000)
-        before, _ = tracemalloc.get_traced_memory()
-        tracemalloc.reset_peak()
-        undistort_and_settle(3000)
-        after, peak = tracemalloc.get_traced_memory()
-    finally:
-        tracemalloc.stop()
-    assert after - before <= 256, f"traced memory grew {after - before} B over 3000 sweeps"
-    assert peak - before < 4096, peak - before
+    grown, peak = traced_growth(undistort_and_settle, 2000, 3000)
+    assert grown <= 256, f"traced memory grew {grown} B over 3000 sweeps"
+    assert peak < 4096, peak
 
 
 NRT_PROBE = textwrap.dedent(
