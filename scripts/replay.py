@@ -8,6 +8,7 @@ in it with ``--localize``, extend it with ``--resume``) and ``metrics.json``.
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 
@@ -38,6 +39,33 @@ def replay_config(config: SlamConfig | None = None, optimizer: str | None = None
     if optimizer is not None:
         changes["matcher.swarm.optimizer"] = optimizer
     return override(config, changes)
+
+
+def bag_sweep(lasers, config: SlamConfig | None, warn=print) -> SlamConfig | None:
+    """``config`` with the sweep a bag's scans state: a ROS LaserScan gives the time between
+    its beams (``time_increment``) and is stamped at its first ray (REP: the header's stamp),
+    so a log whose scans give it runs with their median sweep (``time_increment`` × (beams −
+    1)), stamped at its start, whatever the configuration said of the sweep
+    (docs/method.md §6.1, "The sweep"). A log whose scans give none (a CARMEN log, a bag
+    without it): ``config`` as it was. A sweep beyond ``sensor.sweep_seconds``' bound, or a
+    ``time_increment`` not a number ≥ 0, is warned of by name and not used."""
+    bad = sum(1 for r in lasers if not (math.isfinite(r.time_increment)
+                                        and r.time_increment >= 0.0))
+    if bad:
+        warn(f"{bad} scans' time_increment is not a number ≥ 0: their sweep is not used")
+    timed = [r.time_increment * (len(r.ranges) - 1) for r in lasers
+             if math.isfinite(r.time_increment) and r.time_increment > 0.0]
+    if not timed:
+        return config
+    sweep = float(np.median(timed))
+    if sweep > 1.0:
+        warn(f"the scans' time_increment makes a sweep of {sweep:.3g} s (at most 1 s): not "
+             "used")
+        return config
+    warn(f"the scans sweep for {sweep:.4g} s (their time_increment), stamped at the first "
+         "beam: each scan's turn over it is undone")
+    return override(config or SlamConfig(), {"sensor.sweep_seconds": sweep,
+                                             "sensor.sweep_stamp": 0.0})
 
 
 def robot_frame_scan(record, scan: PointScan) -> PointScan:
@@ -172,6 +200,9 @@ def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, s
             raise ValueError(f"{relations_path}: none of its {len(relations)} relations has "
                              f"both ends at scans of {log_path} (within 0.1 ms) — the "
                              f"relations of another log?")
+    if localize is None and resume is None:  # (a session's configuration is its own)
+        config = bag_sweep(lasers, config, warn=lambda text: print(f"{log_path}: {text}",
+                                                                   file=sys.stderr))
     runtime = replay_runtime(len(lasers), optimizer, seed, config, schedule, localize, resume,
                              session_changes)
     config = runtime.config

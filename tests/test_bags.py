@@ -223,3 +223,46 @@ def test_bench_bags_times_every_format_and_compares_the_replays(carmen_log, tmp_
         assert figures["read_seconds"] > 0
         assert figures["share_of_replay"] == figures["read_seconds"] / entry["replay_wall_seconds"]
     assert out.exists() and "meta" in json.loads(out.read_text())
+
+
+def test_a_bag_whose_scans_give_their_beams_timing_is_replayed_with_that_sweep(carmen_log,
+                                                                                tmp_path):
+    """A ROS LaserScan's ``time_increment`` is its sweep, and its stamp marks the first ray: the
+    replay undoes the turn over that sweep, stamped at its start; a bag without it (and the
+    CARMEN log) runs as configured."""
+    from dataclasses import replace
+
+    from swarmslam.bags import write_bag
+
+    log = read_carmen(carmen_log)
+    beams = len(log.lasers[0].ranges)
+    timed = replace(log, lasers=[replace(r, time_increment=0.1 / (beams - 1))
+                                 for r in log.lasers])
+    swept, plain = tmp_path / "swept.mcap", tmp_path / "plain.mcap"
+    write_bag(timed, swept)
+    write_bag(log, plain)
+    sensor = replay_run(swept, limit=10)[1].config.sensor
+    assert sensor.sweep_seconds == pytest.approx(0.1) and sensor.sweep_stamp == 0.0
+    for path in (plain, carmen_log):
+        sensor = replay_run(path, limit=10)[1].config.sensor
+        assert sensor.sweep_seconds == 0.0 and sensor.sweep_stamp == 1.0
+
+
+def test_a_bags_unusable_beam_timing_is_named_and_not_used():
+    from types import SimpleNamespace
+
+    from swarmslam.replay import bag_sweep
+    from swarmslam.runtime.config import SlamConfig
+
+    said = []
+
+    def scans(ti):
+        return [SimpleNamespace(time_increment=ti, ranges=np.ones(361)) for _ in range(3)]
+
+    assert bag_sweep(scans(math.nan), None, said.append) is None
+    assert bag_sweep(scans(-1e-4), None, said.append) is None
+    assert bag_sweep(scans(0.01), None, said.append) is None  # a 3.6 s sweep: past the bound
+    assert len(said) == 3 and "not a number" in said[0] and "at most 1 s" in said[2]
+    config = bag_sweep(scans(1e-4), SlamConfig(), said.append)
+    assert config.sensor.sweep_seconds == pytest.approx(0.036)
+    assert config.sensor.sweep_stamp == 0.0
