@@ -10,9 +10,11 @@ import tracemalloc
 
 import numpy as np
 
+from swarmslam.runtime.config import SensorConfig
 from swarmslam.runtime.optimizers import SwarmConfig
 from swarmslam.runtime.scan import PointScan
 from swarmslam.runtime.scan_matcher import N_OUT, MatcherConfig, ScanMatcher
+from swarmslam.runtime.sweep_motion import SweepMotion
 from swarmslam.runtime.warm_up import pose_after, room_world, scan_at
 
 ANGLES = np.deg2rad(np.arange(-180, 180, 1.0))
@@ -62,9 +64,6 @@ def test_no_traced_memory_growth_per_match_after_warm_up():
 
 def test_no_traced_memory_growth_per_undistorted_sweep_after_warm_up():
     """A sweep's two passes (runtime/sweep_motion.py) and the settled match: nothing kept."""
-    from swarmslam.runtime.config import SensorConfig
-    from swarmslam.runtime.sweep_motion import SweepMotion
-
     matcher = ScanMatcher(MatcherConfig(swarm=SwarmConfig(max_evaluations=100),
                                         refine_evaluations=40))
     sweep = SweepMotion(SensorConfig(sweep_seconds=0.18), 400)

@@ -5,17 +5,20 @@ import json
 import math
 import subprocess
 import sys
+from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from swarmslam.runtime.config import SlamConfig
 from swarmslam.runtime.pose import between, compose
 from swarmslam.runtime.warm_up import loop_path, room_world, scan_at
-from swarmslam.bags import BagError, BagWriter, read_bag
+from swarmslam.bags import BagError, BagWriter, read_bag, write_bag
 from swarmslam.carmen import flaser_angles, read_carmen
 from swarmslam.cli import main
-from swarmslam.replay import replay_run
+from swarmslam.replay import bag_sweep, replay_run
 from swarmslam.tum import read_tum
 
 from test_hostile_inputs import log_lines
@@ -230,10 +233,6 @@ def test_a_bag_whose_scans_give_their_beams_timing_is_replayed_with_that_sweep(c
     """A ROS LaserScan's ``time_increment`` is its sweep, and its stamp marks the first ray: the
     replay undoes the turn over that sweep, stamped at its start; a bag without it (and the
     CARMEN log) runs as configured."""
-    from dataclasses import replace
-
-    from swarmslam.bags import write_bag
-
     log = read_carmen(carmen_log)
     beams = len(log.lasers[0].ranges)
     timed = replace(log, lasers=[replace(r, time_increment=0.1 / (beams - 1))
@@ -249,11 +248,6 @@ def test_a_bag_whose_scans_give_their_beams_timing_is_replayed_with_that_sweep(c
 
 
 def test_a_bags_unusable_beam_timing_is_named_and_not_used():
-    from types import SimpleNamespace
-
-    from swarmslam.replay import bag_sweep
-    from swarmslam.runtime.config import SlamConfig
-
     said = []
 
     def scans(ti):
