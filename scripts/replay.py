@@ -49,12 +49,11 @@ def bag_sweep(lasers, config: SlamConfig | None, warn=print) -> SlamConfig | Non
     (docs/method.md §6.1, "The sweep"). A log whose scans give none (a CARMEN log, a bag
     without it): ``config`` as it was. A sweep beyond ``sensor.sweep_seconds``' bound, or a
     ``time_increment`` not a number ≥ 0, is warned of by name and not used."""
-    bad = sum(1 for r in lasers if not (math.isfinite(r.time_increment)
-                                        and r.time_increment >= 0.0))
-    if bad:
-        warn(f"{bad} scans' time_increment is not a number ≥ 0: their sweep is not used")
-    timed = [r.time_increment * (len(r.ranges) - 1) for r in lasers
-             if math.isfinite(r.time_increment) and r.time_increment > 0.0]
+    usable = [r for r in lasers if math.isfinite(r.time_increment) and r.time_increment >= 0.0]
+    if len(usable) < len(lasers):
+        warn(f"{len(lasers) - len(usable)} scans' time_increment is not a number ≥ 0: their "
+             "sweep is not used")
+    timed = [r.time_increment * (len(r.ranges) - 1) for r in usable if r.time_increment > 0.0]
     if not timed:
         return config
     sweep = float(np.median(timed))

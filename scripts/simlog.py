@@ -22,7 +22,7 @@ from swarmslam.runtime.writers import write_bytes_atomic, write_text_atomic
 from swarmslam.carmen import flaser_line, odom_line, robotlaser1_line
 from swarmslam.relations import relations_text
 from swarmslam.tum import tum_lines
-from swarmslam_sim.survey import EFFECTS, Effects, Survey, Turning, run_survey, site, sweep_of
+from swarmslam_sim.survey import Effects, Survey, Turning, run_survey, site
 from swarmslam_sim.world import save_world
 
 
@@ -107,9 +107,8 @@ def write_simlog(out, kind: str = "building", seed: int = 0, lidar: str = "sick-
     write_text_atomic(paths["truth"], tum_lines(survey.stamps, survey.true_poses))
     save_world(survey.site.world, paths["world"])
     odo_end = between(survey.odometry[-1], survey.true_poses[-1])
-    fx = EFFECTS[effects] if isinstance(effects, str) else effects
     return {**paths, "scans": len(survey.stamps), "seconds": float(survey.stamps[-1]),
-            "sweep_seconds": sweep_of(fx, survey.lidar, rate_hz),
+            "sweep_seconds": survey.sweep_seconds,
             "max_turn_deg_s": float(np.degrees(np.max(np.abs(np.diff(np.unwrap(
                 survey.true_poses[:, 2]))), initial=0.0)) * rate_hz),
             "metres": survey.length, "relations_count": len(ij),

@@ -192,6 +192,7 @@ class Survey:
     ranges: np.ndarray  # (N, beams); max_range where nothing returned
     angles: np.ndarray  # (beams,) in the scanner's frame
     odometry_stream: bool = True  # the log has an ODOM stream (else the scans' own readings)
+    sweep_seconds: float = 0.0  # from each scan's first beam to its last (:func:`sweep_of`)
 
     @property
     def length(self) -> float:
@@ -330,7 +331,7 @@ def run_survey(where: Site, lidar: str | LidarConfig = "sick-0.5", rate_hz: floa
     if effects.stamp_jitter:
         logged = np.maximum.accumulate(stamps + fx.normal(0.0, effects.stamp_jitter, len(stamps)))
     return Survey(where, config, logged, poses, odo, ranges, scanner.angles.copy(),
-                  odometry_stream=effects.odometry_period == 0)
+                  odometry_stream=effects.odometry_period == 0, sweep_seconds=sweep)
 
 
 def pose_at(fine, t: float, step: float) -> np.ndarray:
