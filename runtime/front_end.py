@@ -23,6 +23,7 @@ from swarmslam.runtime.config import FrontEndConfig, SlamConfig
 from swarmslam.runtime.degeneracy import Degeneracy
 from swarmslam.runtime.loop_closure import propagate_covariance
 from swarmslam.runtime.node_scans import NodeScans
+from swarmslam.runtime.odometry_readings import OdometryReadings
 from swarmslam.runtime.pose import between, compose, interpolate
 from swarmslam.runtime.pose_graph import ODOMETRY, PoseGraph, information_from_sigma
 from swarmslam.runtime.scan import PointScan
@@ -31,15 +32,6 @@ from swarmslam.runtime.sweep_motion import SweepMotion
 
 CAPACITY_STATUS = "capacity reached: localising against the last node, map frozen"
 TRAJECTORY_STATUS = "trajectory capacity reached: poses no longer recorded"
-
-
-def odometry_motion(odometry, last_odometry, have_odometry: bool) -> np.ndarray:
-    """Odometry's motion since ``last_odometry`` (zero at the first reading); the reading is
-    copied into ``last_odometry`` (callers may reuse their array)."""
-    odometry = np.asarray(odometry, dtype=np.float64)
-    delta = between(odometry, last_odometry) if have_odometry else np.zeros(3)
-    last_odometry[:] = odometry
-    return delta
 
 
 @dataclass
@@ -126,16 +118,10 @@ class FrontEnd:
         self.keyframe = -1
         self.rel = np.zeros(3)  # the current pose in the keyframe's frame
         self.motion = np.zeros(3)  # last motion between scans, for a scan-only prediction
-        self.last_odometry = np.zeros(3)  # odometry's last new reading (a copy)
-        self.have_odometry = False
-        # The pose (in the keyframe's frame) of the scan that brought that reading: odometry's
-        # motion is predicted from there (docs/method.md §6.1).
+        self.readings = OdometryReadings(config.front_end.stale_motion)
+        # The pose (in the keyframe's frame) of the scan that brought odometry's last new
+        # reading: its motion is predicted from there (docs/method.md §6.1).
         self.odometry_rel = np.zeros(3)
-        # Odometry read less often than the scans: scans since the last new reading, how many
-        # that reading took to come, and its motion per scan (docs/method.md §6.1).
-        self.stale_scans = 0
-        self.reading_scans = 0
-        self.reading_step = np.zeros(3)
         self.weak = False  # a match since the last node was replaced by odometry
         self.lost_matches = 0
         self.overruled_odometry = 0  # matches the gate refused that the scans upheld
@@ -164,14 +150,9 @@ class FrontEnd:
         base, step, news = self._prediction(odometry)
         self.stale = odometry is not None and not news  # the same reading as before
         guess = compose(base, step)
-        raw = scan
-        if self.sweep.moving:  # the sweep turned to the stamp's heading, by the last turn
-            scan = self.sweep.undistort(raw, self.motion, self.last_interval)
-        match = self.matcher.align_scans(scan, self.reference, guess)  # Alg. 5
-        if self.sweep.moving:  # ... then by the match's own turn, the match settled again
-            scan = self.sweep.undistort(raw, between(match.pose, self.rel),
-                                        stamp - self.last_stamp)
-            match = self.matcher.settle(scan, self.reference, match)
+        # Alg. 5, each point turned to the stamp's heading (the sweep, docs/method.md §6.1)
+        match, scan = self.sweep.align(self.matcher, scan, self.reference, guess, self.motion,
+                                       self.last_interval, self.rel, stamp - self.last_stamp)
         self.evaluations = match.evaluations
         pose = match.pose
         self.degeneracy = None
@@ -243,7 +224,8 @@ class FrontEnd:
         self.nodes.store(node, scan)
         self.keyframe = node
         self.rel[:], self.motion[:] = 0.0, 0.0
-        self.weak, self.have_odometry = False, False
+        self.weak, self.readings.have = False, False
+        self.last_stamp, self.last_interval = stamp, math.nan  # (not the saved session's)
         self._prediction(odometry)  # the new run's odometry starts here
         self.rebuild_reference()
         self._record(stamp)
@@ -306,9 +288,8 @@ class FrontEnd:
         self.last_stamp = stamp
         self.rebuild_reference()
         if odometry is not None:
-            self.last_odometry[:] = odometry
+            self.readings.read(odometry)  # the first reading: odometry starts here
             self.odometry_rel[:] = 0.0
-            self.have_odometry = True
         self._record(stamp)
         self._remember(scan)
 
@@ -459,32 +440,18 @@ class FrontEnd:
 
     def _prediction(self, odometry):
         """Where the scan's predicted pose starts (in the keyframe's frame), the motion added
-        to it, and whether odometry brought a new reading. A new reading predicts odometry's
-        motion since its last new one, from the scan that brought that one: odometry read
-        less often than the scans (the same reading for several scans, then caught up at
-        once) must not count twice the motion the scans followed in between. The same reading
-        again predicts, from the last scan, the translation per scan the last new reading
-        showed while fewer scans have passed than that reading took to come (``stale_motion``),
-        else no motion: a reading that came at every scan repeats only at rest. Without
-        odometry: the last motion the scans showed, continued (docs/method.md §6.1)."""
-        if odometry is None:  # scans only, or a reading the inbox dropped (docs/runtime.md
-            self.have_odometry = False  # §7): the next reading starts odometry afresh
+        to it, and whether odometry brought a new reading: a new reading's motion from the
+        scan that brought the last new one, a stale one's from the last scan
+        (:mod:`swarmslam.runtime.odometry_readings`). Without odometry: the last motion the
+        scans showed, continued (docs/method.md §6.1)."""
+        step, news, first = self.readings.read(odometry)
+        if step is None:  # scans only, or a reading the inbox dropped
             return self.rel, self.motion, False
-        odometry = np.asarray(odometry, np.float64)
-        if self.have_odometry and np.array_equal(odometry, self.last_odometry):
-            self.stale_scans += 1
-            if self.config.front_end.stale_motion and self.stale_scans < self.reading_scans:
-                return self.rel, self.reading_step, False
-            return self.rel, np.zeros(3), False
-        if not self.have_odometry:  # the first reading: odometry starts here
+        if not news:
+            return self.rel, step, False
+        if first:  # odometry starts here
             self.odometry_rel[:] = self.rel
-            self.stale_scans = 0
-        delta = odometry_motion(odometry, self.last_odometry, self.have_odometry)
-        self.reading_scans = self.stale_scans + 1
-        self.reading_step[:2] = delta[:2] / self.reading_scans
-        self.stale_scans = 0
-        self.have_odometry = True
-        return self.odometry_rel, delta, True
+        return self.odometry_rel, step, True
 
     def _record(self, stamp):
         k = self.n_scans
@@ -502,15 +469,16 @@ class FrontEnd:
         return {"matcher": self.matcher.state(), "scan_node": self.scan_node[:k].copy(),
                 "scan_rel": self.scan_rel[:k].copy(), "scan_stamp": self.scan_stamp[:k].copy(),
                 "initial_pose": self.initial_pose.copy(), "rel": self.rel.copy(),
-                "motion": self.motion.copy(), "last_odometry": self.last_odometry.copy(),
-                "keyframe": self.keyframe, "have_odometry": self.have_odometry,
+                "motion": self.motion.copy(), "last_odometry": self.readings.last.copy(),
+                "keyframe": self.keyframe, "have_odometry": self.readings.have,
                 "weak": self.weak, "lost_matches": self.lost_matches,
                 "degenerate_matches": self.degenerate_matches, "status": self.status,
                 "submap_nodes": self._submap_nodes[: self._n_submap].copy(),
                 "submap_poses": self._submap_poses[: self._n_submap].copy(),
                 "odometry_rel": self.odometry_rel.copy(),
-                "stale_scans": self.stale_scans, "reading_scans": self.reading_scans,
-                "reading_step": self.reading_step.copy(),
+                "stale_scans": self.readings.stale_scans,
+                "reading_scans": self.readings.reading_scans,
+                "reading_step": self.readings.reading_step.copy(),
                 "last_stamp": self.last_stamp, "last_interval": self.last_interval,
                 "previous_points": self._previous.points.copy()}
 
@@ -529,21 +497,22 @@ class FrontEnd:
         self.n_scans = k
         self.initial_pose[:] = state["initial_pose"]
         self.rel[:], self.motion[:] = state["rel"], state["motion"]
-        self.last_odometry[:] = state["last_odometry"]
-        self.have_odometry, self.weak = bool(state["have_odometry"]), bool(state["weak"])
+        readings = self.readings
+        readings.last[:] = state["last_odometry"]
+        readings.have, self.weak = bool(state["have_odometry"]), bool(state["weak"])
         self.lost_matches, self.status = int(state["lost_matches"]), str(state["status"])
         self.degenerate_matches = int(state["degenerate_matches"])
         self.keyframe = int(state["keyframe"])
         # a session saved before stale readings were told apart predicts from its last scan
         self.odometry_rel[:] = state.get("odometry_rel", self.rel)
         # (saved before stale readings continued a motion: none continued until a new reading)
-        self.stale_scans = int(state.get("stale_scans", 0))
-        self.reading_scans = int(state.get("reading_scans", 0))
+        readings.stale_scans = int(state.get("stale_scans", 0))
+        readings.reading_scans = int(state.get("reading_scans", 0))
         step = np.asarray(state.get("reading_step", np.zeros(3)), np.float64)
-        if step.shape != (3,) or not np.all(np.isfinite(step)) or min(self.stale_scans,
-                                                                      self.reading_scans) < 0:
+        if step.shape != (3,) or not np.all(np.isfinite(step)) or min(
+                readings.stale_scans, readings.reading_scans) < 0:
             raise ValueError("the stale readings' motion is not one this front end keeps")
-        self.reading_step[:] = step
+        readings.reading_step[:] = step
         # (saved before the sweep was undistorted: the trajectory's last stamp; no motion's
         # interval, so the next scan's first pass leaves its sweep as it came)
         self.last_stamp = float(state.get("last_stamp", self.scan_stamp[k - 1] if k else math.nan))

@@ -26,13 +26,16 @@ are read-only: localization cannot change them.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from swarmslam.runtime.config import SlamConfig
-from swarmslam.runtime.front_end import TRAJECTORY_STATUS, odometry_motion
+from swarmslam.runtime.front_end import TRAJECTORY_STATUS
 from swarmslam.runtime.map_tracking import MapTracker, SavedMap
 from swarmslam.runtime.node_scans import NodeScans
 from swarmslam.runtime.occupancy_grid import OccupancyGrid
+from swarmslam.runtime.odometry_readings import OdometryReadings
 from swarmslam.runtime.pose import between, compose, inverse
 from swarmslam.runtime.relocalization import Located, Relocalizer
 from swarmslam.runtime.resources import check_memory
@@ -73,8 +76,8 @@ class Localizer:
         self.stamps = np.zeros(n)
         self.poses = np.full((n, 3), np.nan)  # NaN: no committed pose at that scan
         self.n_scans = 0
-        self.last_odometry = np.zeros(3)
-        self.have_odometry = False
+        self.readings = OdometryReadings(config.front_end.stale_motion)
+        self.last_stamp = math.nan  # the scan before's, for the sweep (docs/method.md §6.1)
         self.counts = {"searches": 0, "ambiguous_answers": 0, "empty_answers": 0,
                        "committed": 0, "lost": 0, "poor_matches": 0, "tracked_scans": 0,
                        "odometry_held": 0}
@@ -89,7 +92,8 @@ class Localizer:
         streams restart as a localizer made with that seed starts them (a benchmark's
         queries then do not depend on the ones before)."""
         self.phase, self.n_candidates, self.n_recent = SEARCHING, 0, 0
-        self.have_odometry = False
+        self.readings.have = False
+        self.last_stamp = math.nan
         self._pending = None
         if seed is not None:  # as the constructor seeds them
             self.relocalizer.matcher.optimizer.reseed(seed)
@@ -111,24 +115,27 @@ class Localizer:
              budget_end: float | None = None) -> StepResult:
         """One scan in the current phase (see module doc); ``clock`` times the tracking."""
         start = clock() if clock is not None else 0.0
-        motion = self._odometry_step(odometry)
+        motion, news = self._odometry_step(odometry)
+        stale = motion is not None and not news  # odometry's last reading again
+        interval = stamp - self.last_stamp if stamp > self.last_stamp else 0.0  # (NaN: 0)
+        self.last_stamp = stamp
         error = 0.0
         self._searched = False
         if self.phase == TRACKING:
-            error = self._track(scan, motion)
+            error = self._track(scan, motion, news, stale, interval)
         if self.phase != TRACKING:
             self._remember(scan, motion, stamp)
         if self.phase == CONFIRMING:
-            self._confirm(scan, motion, stamp)
+            self._confirm(scan, motion, news, stale, stamp, interval)
         if self.phase == SEARCHING and not self._searched:  # (a second look may have)
             self._search(scan, motion, stamp, clock, budget_end)
         took = clock() - start if clock is not None else 0.0
         self._record(stamp)
         return StepResult(self.pose(), False, False, error, took)
 
-    def _track(self, scan, motion) -> float:
+    def _track(self, scan, motion, news, stale, interval) -> float:
         tracker = self.trackers[0]
-        fit = tracker.follow(scan, motion, gate=True)
+        fit = tracker.follow(scan, motion, news, stale, gate=True, interval=interval)
         self.counts["tracked_scans"] += 1
         self.fit_sum += fit
         if tracker.poor:
@@ -233,10 +240,11 @@ class Localizer:
             self.phase = SEARCHING
         return earliest
 
-    def _confirm(self, scan, motion, stamp) -> None:
+    def _confirm(self, scan, motion, news, stale, stamp, interval) -> None:
         lc = self.config.localization
         for k in range(self.n_candidates):  # a lone candidate has no twin to merge with
-            self.trackers[k].follow(scan, motion, gate=self.n_candidates == 1, measure=True)
+            self.trackers[k].follow(scan, motion, news, stale, gate=self.n_candidates == 1,
+                                    measure=True, interval=interval)
         # a candidate that lost track is dropped; two that tracked into one place are one
         dropped = self._duplicates()
         self._keep(lambda t: t.poor < lc.lost_scans and id(t) not in dropped)
@@ -315,14 +323,13 @@ class Localizer:
         self._commit(0)
 
     def _odometry_step(self, odometry):
-        """Odometry's motion since the last scan, or None (the trackers repeat their last;
-        a reading the inbox dropped: the next starts odometry afresh, docs/runtime.md §7)."""
-        if odometry is None:
-            self.have_odometry = False
-            return None
-        step = odometry_motion(odometry, self.last_odometry, self.have_odometry)
-        self.have_odometry = True
-        return step
+        """Odometry's motion at this scan and whether it is a new reading, or (None, False)
+        without one (the trackers repeat their last motion; a reading the inbox dropped: the
+        next starts odometry afresh, docs/runtime.md §7). A new reading's motion is added to
+        the pose of the scan that brought the last new one, a stale one's to the last scan's
+        (:mod:`swarmslam.runtime.odometry_readings`)."""
+        step, news, _ = self.readings.read(odometry)
+        return step, news
 
     def _record(self, stamp) -> None:
         k = self.n_scans

@@ -3,7 +3,7 @@
 
     tracker = MapTracker(saved, matcher, config)
     tracker.start(pose)
-    fit = tracker.follow(scan, step)     # share of the scan's points on the saved surfaces
+    fit = tracker.follow(scan, step, news, stale, interval=dt)  # share of points on the map
 
 The reference is the ``localization.submap_nodes`` saved node scans nearest the pose (heading
 counted as distance, since a scan sees what its node faced), placed in the nearest one's
@@ -13,7 +13,8 @@ A match that fits poorly is replaced by the prediction (the scan may be blocked 
 furniture the map does not have); ``lost_scans`` such matches in a row mean the pose is lost.
 With ``gate`` (a committed pose, or a lone candidate), a match that odometry contradicts is
 refused too, as the front end refuses one, but for at most ``max_held_scans`` scans in a row
-(:meth:`MapTracker._gated`).
+(:meth:`MapTracker._gated`). A rotating scanner's sweep is undone as the front end undoes
+it (docs/method.md §6.1, "The sweep"), given the time since the scan before.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from swarmslam.runtime.node_scans import NodeScans
 from swarmslam.runtime.pose import between, compose
 from swarmslam.runtime.scan import PointScan
 from swarmslam.runtime.scan_matcher import ScanMatcher
+from swarmslam.runtime.sweep_motion import SweepMotion
 
 
 @njit(cache=True)
@@ -117,6 +119,15 @@ class MapTracker:
         self._near_d2 = np.zeros(len(self._near))
         self.pose = np.zeros(3)  # in the map frame
         self.motion = np.zeros(3)  # the last scan-to-scan motion, for a scan-only prediction
+        # the pose of the scan that brought odometry's last new reading (if one did since the
+        # start): the next new reading's motion is added to it (docs/method.md §6.1)
+        self.odometry_pose = np.zeros(3)
+        self.read_here = False
+        self.last_interval = 0.0  # s from the scan before the last to the last (0: unknown)
+        self.sweep = SweepMotion(config.sensor, config.sensor.max_points)
+        g = config.matcher.guess_window  # the box after a stale reading
+        self._turn_window = np.array([g[0], g[1], max(g[2],
+                                                      config.front_end.stale_turn_window)])
         self.anchor = -1
         self.poor = 0  # poor matches in a row
         self.followed = False  # the pose came from a match, not from a search or a rewind
@@ -142,6 +153,8 @@ class MapTracker:
         """At ``pose``, not yet tracked: no reference, no poor match, nothing held."""
         self.pose[:] = pose
         self.motion[:] = motion
+        self.read_here = False
+        self.last_interval = 0.0
         self.anchor = -1
         self.poor, self.n_held = 0, 0
         self.followed = self.held = False
@@ -151,19 +164,38 @@ class MapTracker:
     def mean_fit(self) -> float:
         return self.fit_sum / self.fits if self.fits else 0.0
 
-    def follow(self, scan: PointScan, step=None, gate: bool = False,
-               measure: bool = False) -> float:
-        """Alg. 5 for ``scan`` from the pose moved by ``step`` (odometry's motion since the last
-        scan; None: the last motion again); with ``gate``, a match odometry contradicts is
+    def follow(self, scan: PointScan, step=None, news: bool = False, stale: bool = False,
+               gate: bool = False, measure: bool = False, interval: float = 0.0) -> float:
+        """Alg. 5 for ``scan`` from the pose moved by ``step``: odometry's motion, from the
+        pose of the scan that brought its last new reading if it is a new one (``news``; the
+        last scan's when none came since this pose was started), else from the last scan's
+        (:mod:`swarmslam.runtime.odometry_readings`); None: the last motion again. A
+        ``stale`` reading (the last one again) widens the heading's search to
+        ``stale_turn_window``. With ``gate``, a match odometry contradicts is
         refused (:meth:`_gated`); with ``measure``, a match that pins every direction (not
-        degenerate, docs/method.md §6.1) is counted in ``pinned``. Returns the fit (inlier
-        share) of the pose taken."""
+        degenerate, docs/method.md §6.1) is counted in ``pinned``. ``interval``: s since the
+        scan followed before (0: not known, or scans followed backward), over which the robot's
+        turn is undone from the scan's sweep. Returns the fit (inlier share) of the pose
+        taken."""
         c = self.config.front_end
-        predicted = compose(self.pose, self.motion if step is None else step)
+        news = news and step is not None
+        # the last pose is a match kept: not searched for, given, rewound to, or odometry's
+        # standing in (a few degrees off in a turn)
+        kept = self.followed and not self.held and self.poor == 0
+        base = self.odometry_pose if news and self.read_here else self.pose
+        predicted = compose(base, self.motion if step is None else step)
         self._reanchor(predicted)
         origin = self.saved.poses[self.anchor]
         guess = between(predicted, origin)
-        match = self.matcher.align_scans(scan, self.reference, guess)
+        # The turn over the sweep is the match's from the last pose, if that was a match kept
+        # (another would put its own error into every point).
+        interval = interval if kept else 0.0
+        # (a stale reading says nothing of a turn in place since: 23° a scan in a pivot is
+        # beyond the guess window, and odometry's next reading comes only after it)
+        window = self._turn_window if stale else None
+        match, scan = self.sweep.align(self.matcher, scan, self.reference, guess, self.motion,
+                                       self.last_interval, between(self.pose, origin), interval,
+                                       window)
         pose = match.pose
         self.held = False
         if gate and step is not None and self.followed:
@@ -181,8 +213,12 @@ class MapTracker:
             self.poor = 0
         pose = compose(origin, pose)
         self.followed = True
+        self.last_interval = interval if not self.held and self.poor == 0 else 0.0
         self.motion[:] = between(pose, self.pose)
         self.pose[:] = pose
+        if news:
+            self.odometry_pose[:] = pose
+            self.read_here = True
         self.fit_sum += fit
         self.fits += 1
         self.error = match.error

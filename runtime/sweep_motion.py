@@ -4,6 +4,8 @@ sweep").
 
     sweep = SweepMotion(config.sensor, capacity)
     scan = sweep.undistort(scan, motion, interval)   # every point as seen at the stamp's heading
+    match, scan = sweep.align(matcher, scan, reference, guess, turn, turn_interval,
+                              previous, interval)    # Alg. 5 on the scan so undistorted
 
 An RPLidar's sweep is its whole rotation (0.18 s at 5.5 Hz): turning at 1 rad/s the robot
 turns 10° between its first beam and its last, and a straight wall comes out bent. A SICK LMS
@@ -20,6 +22,7 @@ import math
 from numba import njit
 
 from swarmslam.runtime.config import SensorConfig
+from swarmslam.runtime.pose import between
 from swarmslam.runtime.scan import PointScan
 
 
@@ -67,3 +70,21 @@ class SweepMotion:
         out.sweep[: scan.count] = scan.sweep[: scan.count]
         out.count = scan.count
         return out
+
+    def align(self, matcher, scan: PointScan, reference, guess, turn, turn_interval: float,
+              previous, interval: float, window=None):
+        """Alg. 5 for ``scan`` (its points as taken) against ``reference`` from ``guess`` (the
+        box's half-widths ``window``, None: the matcher's ``guess_window``), by ``matcher`` (a
+        :class:`~swarmslam.runtime.scan_matcher.ScanMatcher`), its sweep undone in two passes:
+        by ``turn`` (the robot's last motion, over ``turn_interval`` s) for the swarm's match,
+        then by the match's own turn from ``previous`` (the last scan's pose in the
+        reference's frame, ``interval`` s before), the match settled again on the scan so
+        turned (:meth:`~swarmslam.runtime.scan_matcher.ScanMatcher.settle`). Returns the match
+        and the scan as undistorted (this object's buffer, or ``scan`` itself with no sweep
+        or no interval)."""
+        if not self.moving:
+            return matcher.align_scans(scan, reference, guess, window), scan
+        match = matcher.align_scans(self.undistort(scan, turn, turn_interval), reference, guess,
+                                    window)
+        turned = self.undistort(scan, between(match.pose, previous), interval)
+        return matcher.settle(turned, reference, match), turned
