@@ -34,6 +34,14 @@ CAPACITY_STATUS = "capacity reached: localising against the last node, map froze
 TRAJECTORY_STATUS = "trajectory capacity reached: poses no longer recorded"
 
 
+def stale_turn_box(config: SlamConfig) -> np.ndarray:
+    """The half-widths of a match's box after a stale reading: the guess window's, the
+    heading's widened to ``stale_turn_window`` (a turn in place since the reading is not
+    known)."""
+    g = config.matcher.guess_window
+    return np.array([g[0], g[1], max(g[2], config.front_end.stale_turn_window)])
+
+
 @dataclass
 class Tracking:
     pose: np.ndarray  # the scan's pose in the map frame
@@ -93,8 +101,7 @@ class FrontEnd:
         points = config.sensor.max_points
         submap_nodes = config.front_end.submap_nodes
         self.matcher = ScanMatcher(config.matcher, seed=seed)
-        g = config.matcher.guess_window  # a lost match's box after a stale reading
-        self._turn_window = np.array([g[0], g[1], max(g[2], config.front_end.stale_turn_window)])
+        self._turn_window = stale_turn_box(config)  # a lost match's box after a stale reading
         self.reference = self.matcher.new_reference()
         self.sweep = SweepMotion(config.sensor, points)
         # The last scan's stamp, and the time since the one before: what the motion the sweep

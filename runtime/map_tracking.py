@@ -27,7 +27,7 @@ from numba import njit
 
 from swarmslam.runtime.config import SlamConfig
 from swarmslam.runtime.degeneracy import Degeneracy
-from swarmslam.runtime.front_end import contradicts_odometry
+from swarmslam.runtime.front_end import contradicts_odometry, stale_turn_box
 from swarmslam.runtime.node_scans import NodeScans
 from swarmslam.runtime.pose import between, compose
 from swarmslam.runtime.scan import PointScan
@@ -122,12 +122,10 @@ class MapTracker:
         # the pose of the scan that brought odometry's last new reading (if one did since the
         # start): the next new reading's motion is added to it (docs/method.md §6.1)
         self.odometry_pose = np.zeros(3)
-        self.read_here = False
+        self.odometry_pose_known = False
         self.last_interval = 0.0  # s from the scan before the last to the last (0: unknown)
         self.sweep = SweepMotion(config.sensor, config.sensor.max_points)
-        g = config.matcher.guess_window  # the box after a stale reading
-        self._turn_window = np.array([g[0], g[1], max(g[2],
-                                                      config.front_end.stale_turn_window)])
+        self._turn_window = stale_turn_box(config)  # the box after a stale reading
         self.anchor = -1
         self.poor = 0  # poor matches in a row
         self.followed = False  # the pose came from a match, not from a search or a rewind
@@ -153,7 +151,7 @@ class MapTracker:
         """At ``pose``, not yet tracked: no reference, no poor match, nothing held."""
         self.pose[:] = pose
         self.motion[:] = motion
-        self.read_here = False
+        self.odometry_pose_known = False
         self.last_interval = 0.0
         self.anchor = -1
         self.poor, self.n_held = 0, 0
@@ -182,7 +180,7 @@ class MapTracker:
         # the last pose is a match kept: not searched for, given, rewound to, or odometry's
         # standing in (a few degrees off in a turn)
         kept = self.followed and not self.held and self.poor == 0
-        base = self.odometry_pose if news and self.read_here else self.pose
+        base = self.odometry_pose if news and self.odometry_pose_known else self.pose
         predicted = compose(base, self.motion if step is None else step)
         self._reanchor(predicted)
         origin = self.saved.poses[self.anchor]
@@ -218,7 +216,7 @@ class MapTracker:
         self.pose[:] = pose
         if news:
             self.odometry_pose[:] = pose
-            self.read_here = True
+            self.odometry_pose_known = True
         self.fit_sum += fit
         self.fits += 1
         self.error = match.error
