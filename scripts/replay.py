@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from swarmslam.runtime.config import SlamConfig, override
+from swarmslam.runtime.config import ConfigError, SlamConfig, override
 from swarmslam.runtime.fixed_rate import SlamRuntime
 from swarmslam.runtime.pose import compose
 from swarmslam.runtime.scan import PointScan, ranges_to_points
@@ -57,14 +57,15 @@ def bag_sweep(lasers, config: SlamConfig | None, warn=print) -> SlamConfig | Non
     if not timed:
         return config
     sweep = float(np.median(timed))
-    if sweep > 1.0:
-        warn(f"the scans' time_increment makes a sweep of {sweep:.3g} s (at most 1 s): not "
-             "used")
+    try:
+        swept = override(config or SlamConfig(), {"sensor.sweep_seconds": sweep,
+                                                  "sensor.sweep_stamp": 0.0})
+    except ConfigError as error:  # beyond the field's bounds
+        warn(f"the scans' time_increment makes a sweep of {sweep:.3g} s ({error}): not used")
         return config
     warn(f"the scans sweep for {sweep:.4g} s (their time_increment), stamped at the first "
          "beam: each scan's turn over it is undone")
-    return override(config or SlamConfig(), {"sensor.sweep_seconds": sweep,
-                                             "sensor.sweep_stamp": 0.0})
+    return swept
 
 
 def robot_frame_scan(record, scan: PointScan) -> PointScan:

@@ -104,11 +104,16 @@ EFFECTS = {
 }
 
 
+def rotates(lidar: LidarConfig) -> bool:
+    """A scanner whose beams go all the way round (an RPLidar): it sweeps a whole turn."""
+    return lidar.fov >= 2 * math.pi - 1e-9
+
+
 def sweep_of(effects: Effects, lidar: LidarConfig, rate_hz: float) -> float:
     """s from a scan's first beam to its last, as ``effects`` and the scanner make it: a full
     turn of beams swept for the whole turn when ``sweep_turn`` (an RPLidar at 5.5 Hz: 0.18 s),
     else ``sweep_seconds``: what a replay of the log may be told (``sensor.sweep_seconds``)."""
-    if effects.sweep_turn and lidar.fov >= 2 * math.pi - 1e-9:
+    if effects.sweep_turn and rotates(lidar):
         return 1.0 / rate_hz
     return effects.sweep_seconds
 

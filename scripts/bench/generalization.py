@@ -30,7 +30,7 @@ from swarmslam.plots import bars, require_matplotlib
 from swarmslam.replay import replay_run
 from swarmslam.simlog import write_simlog
 from swarmslam.tum import read_tum
-from swarmslam_sim.survey import EFFECTS, ODOMETRY, SCANNERS, SITES
+from swarmslam_sim.survey import EFFECTS, ODOMETRY, SCANNERS, SITES, rotates
 from swarmslam.bench.record import save_results
 
 CORRECT_LOOP = (0.2, math.radians(2.0))  # m, rad
@@ -188,10 +188,10 @@ def run_case(case: Case, work: Path, config: SlamConfig | None = None, floor: bo
               "metres": round(made["metres"], 1),
               "odometry_error_end_m": made["odometry_error_end_m"]}
     for label, oracle in (("", False), ("floor_", True)) if floor else (("", False),):
-        # The scanner as its preset has it: an RPLidar's sweep (its rotation) undistorted, a
-        # SICK's not (as on the given logs, whose stamp's place in the sweep is unknown;
-        # docs/experiments/2026-11-28-sweep.md measured its 27 ms told).
-        sweep = made["sweep_seconds"] if case.scanner.startswith("rplidar") else 0.0
+        # The scanner as its preset has it: a rotating scanner's sweep (its rotation)
+        # undistorted, a SICK's not (as on the given logs, whose stamp's place in the sweep is
+        # unknown; docs/experiments/2026-11-28-sweep.md measured its 27 ms told).
+        sweep = made["sweep_seconds"] if rotates(SCANNERS[case.scanner]) else 0.0
         run_config = override(config or SlamConfig(), {"sensor.sweep_seconds": sweep})
         hook = None
         if oracle:  # a perfect match is never lost: nothing for the gate or the inlier test
