@@ -184,10 +184,14 @@ def splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field, columns):
     The hot loop of every build: each row is a slice walked from 0 with a select, not a
     branch, so that it compiles to vector instructions (a negative index check or a
     conditional store would keep it scalar: 1.7× the time), and the point case (a = b) needs
-    no projection. A node's x is read from ``columns``, not computed from its index: on a CPU
-    without AVX-512 (Zen 3) the index's conversion to a double runs lane by lane, a third of
-    a build (docs/experiments/2026-11-27-field-speed.md). The arithmetic is the same,
-    operation for operation, so the field is too."""
+    no projection. The select is ``np.fmin``: written ``d2 if d2 < f else f``, LLVM turned it
+    into a masked store of the lowered lanes (``vmaskmovps``), which AMD's Zen 3 runs in
+    microcode: a build took 1.4 times as long (docs/experiments/2026-11-28-masked-store.md).
+    ``fmin`` stores every lane, the same value (the operands are finite). A node's x is read
+    from ``columns``, not computed from its index: on a CPU without AVX-512 (Zen 3) the
+    index's conversion to a double runs lane by lane, a third of a build
+    (docs/experiments/2026-11-27-field-speed.md). The arithmetic is the same, operation for
+    operation, so the field is too."""
     ux = bx - ax
     uy = by - ay
     uu = ux * ux + uy * uy
@@ -208,15 +212,13 @@ def splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field, columns):
                 dx = ax + t * ux - cx
                 dy = ay + t * uy - cy
                 d2 = dx * dx + dy * dy
-                f = row[k]
-                row[k] = d2 if d2 < f else f
+                row[k] = np.fmin(d2, row[k])
         else:
             dy = ay - cy
             for k in range(m):
                 dx = ax - xs[k]
                 d2 = dx * dx + dy * dy
-                f = row[k]
-                row[k] = d2 if d2 < f else f
+                row[k] = np.fmin(d2, row[k])
 
 
 @njit(cache=True, inline="always")
