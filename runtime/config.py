@@ -324,6 +324,15 @@ class FrontEndConfig(Section):
         "the points this near a surface (plus track_inlier_slope per m of range): narrower than "
         "track_inlier_distance, which tells a lost match, it tells two poses a few degrees "
         "apart", gt=0)
+    odometry_heading_weight: float = _setting(
+        5.0, "λ per (turn / σ)²: a match turning odometry's prediction (a new reading) by more "
+        "than σ is weighed against the optimum the compass search settles in from the "
+        "prediction, each by its λ plus this times (its turn from the prediction / σ)²; of "
+        "two valleys the scans fit alike, the nearer one stands (docs/method.md §6.1); 0: off",
+        ge=0)
+    odometry_heading_sigma: float = _setting(
+        math.radians(1.0), "rad, σ of odometry's heading over a step, plus "
+        "odometry_gate_share's heading share of its turn", gt=0)
     previous_scan_gain: float = _setting(
         0.1, "a match is lost when odometry's prediction (a new reading) fits the previous scan "
         "by more than this share of the points better than the match does: the keyframe's "
@@ -889,6 +898,7 @@ EXPERT_FIELDS = frozenset({
     "front_end.stale_turn_window", "front_end.stale_motion", "front_end.degenerate_information",
     "front_end.odometry_gate_share", "front_end.odometry_gate_fit",
     "front_end.odometry_gate_explained", "front_end.odometry_gate_distance",
+    "front_end.odometry_heading_weight", "front_end.odometry_heading_sigma",
     "front_end.previous_scan_gain", "front_end.previous_scan_fit",
     "loop_closure.agreement_nodes", "loop_closure.agreement_distance",
     "loop_closure.agreement_angle",

@@ -24,10 +24,10 @@ from swarmslam.runtime.degeneracy import Degeneracy
 from swarmslam.runtime.loop_closure import propagate_covariance
 from swarmslam.runtime.node_scans import NodeScans
 from swarmslam.runtime.odometry_readings import OdometryReadings
-from swarmslam.runtime.pose import between, compose, interpolate
+from swarmslam.runtime.pose import between, compose, interpolate, wrap_angle
 from swarmslam.runtime.pose_graph import ODOMETRY, PoseGraph, information_from_sigma
 from swarmslam.runtime.scan import PointScan
-from swarmslam.runtime.scan_matcher import ScanMatcher
+from swarmslam.runtime.scan_matcher import MatchResult, ScanMatcher
 from swarmslam.runtime.sweep_motion import SweepMotion
 
 CAPACITY_STATUS = "capacity reached: localising against the last node, map frozen"
@@ -144,6 +144,7 @@ class FrontEnd:
         self._previous_surfaces = self.matcher.new_surfaces(points)
         self._previous_listed = False
         self.disowned_matches = 0  # matches the previous scan called lost
+        self.held_to_odometry = 0  # matches that gave way to the optimum nearer odometry
         self.status = "ok"
         self.evaluations = 0  # by the last match (what a viewer plots)
 
@@ -162,6 +163,8 @@ class FrontEnd:
                                        self.last_interval, self.rel, stamp - self.last_stamp)
         self.evaluations = match.evaluations
         pose = match.pose
+        if news:  # (a stale reading predicts no turn to weigh a match against)
+            pose = self._nearer_odometry(scan, match, guess, step)
         self.degeneracy = None
         if self.config.front_end.degeneracy_ratio > 0:
             pose = self._constrained(scan, pose, guess)
@@ -403,6 +406,34 @@ class FrontEnd:
         # a narrower band than a lost match's tells two poses a few degrees apart
         fit, predicted = (self._inliers(scan, p, c.odometry_gate_distance) for p in (pose, guess))
         return scans_overrule(fit, predicted, False, c)
+
+    def _nearer_odometry(self, scan, match, guess, step):
+        """Of two optima of the scan cost, the one nearer odometry's heading: a ``match``
+        turning the prediction ``guess`` (a new reading) by more than σ
+        (``odometry_heading_sigma`` plus ``odometry_gate_share``'s heading share of the turn
+        ``step`` predicted) is weighed against the optimum the compass search settles in from
+        the prediction, each by its λ plus ``odometry_heading_weight``·(its turn from the
+        prediction / σ)². A submap holding a wall twice fits a scan at either copy about
+        equally; odometry, which saw no such turn, tells them apart (fr-clinic's halls: ±2–5°
+        a scan where odometry drove straight; docs/method.md §6.1). A match that fits clearly
+        better, odometry's lag in a fast turn, outweighs the prior."""
+        c = self.config.front_end
+        turn = float(wrap_angle(match.pose[2] - guess[2]))
+        sigma = c.odometry_heading_sigma + c.odometry_gate_share[1] * abs(float(step[2]))
+        if c.odometry_heading_weight <= 0 or abs(turn) <= sigma:
+            return match.pose
+        settled = self.matcher.settle(scan, self.reference, self._at_prediction(guess))
+        held = float(wrap_angle(settled.pose[2] - guess[2]))
+        weight = c.odometry_heading_weight
+        if settled.error + weight * (held / sigma) ** 2 < match.error + weight * (turn / sigma) ** 2:
+            self.held_to_odometry += 1
+            return settled.pose
+        return match.pose
+
+    def _at_prediction(self, guess) -> MatchResult:
+        """Odometry's prediction as a match to settle from (its λ is the settling's to find)."""
+        return MatchResult(pose=np.asarray(guess, dtype=np.float64), error=math.inf,
+                           scan_error=math.inf, used_map=False, iterations=0, evaluations=0)
 
     def _constrained(self, scan, pose, guess):
         """The match where the scan pins it, the prediction where it does not
