@@ -258,6 +258,7 @@ def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, s
         "matches_recovered": slam.front_end.lost_matches,
         "matches_degenerate": slam.front_end.degenerate_matches,
         "matches_disowned": slam.front_end.disowned_matches,
+        "matches_held_to_odometry": slam.front_end.held_to_odometry,
         **timing,
         "status": run_status(runtime.status, log, runtime),
         "runtime": runtime.report(),
