@@ -380,6 +380,21 @@ def _hall_with_a_wall_held_twice(config, seed):
     return fe, np.array(errors[1:])
 
 
+def _worst_without_and_with(without, with_rule, counter):
+    """The hall with a wall held twice on seeds 0–3, under a configuration without a rule and
+    one with it: each seed's worst heading error (°) under both, and how often the rule acted
+    (the front end's ``counter``), which must be never without it."""
+    worst_without, worst_with, acted = [], [], 0
+    for seed in range(4):
+        fe, errors = _hall_with_a_wall_held_twice(without, seed)
+        assert getattr(fe, counter) == 0
+        worst_without.append(errors.max())
+        fe, errors = _hall_with_a_wall_held_twice(with_rule, seed)
+        acted += getattr(fe, counter)
+        worst_with.append(errors.max())
+    return worst_without, worst_with, acted
+
+
 def test_the_previous_scan_disowns_a_match_on_a_wall_the_submap_holds_twice():
     """Tracked against a submap that holds the hall's walls twice, a scan fits either copy
     about equally, and some seeds' matches take the copy 4.5° off, which odometry's gate (5°)
@@ -389,14 +404,8 @@ def test_the_previous_scan_disowns_a_match_on_a_wall_the_submap_holds_twice():
     # (odometry's heading weighed too would hold those matches first: the next test)
     alone = override(SlamConfig(), {"front_end.odometry_heading_weight": 0.0})
     never = override(alone, {"front_end.previous_scan_gain": 1.0})
-    worst_unchecked, worst_checked, disowned = [], [], 0
-    for seed in range(4):
-        fe, errors = _hall_with_a_wall_held_twice(never, seed)
-        assert fe.disowned_matches == 0
-        worst_unchecked.append(errors.max())
-        fe, errors = _hall_with_a_wall_held_twice(alone, seed)
-        disowned += fe.disowned_matches
-        worst_checked.append(errors.max())
+    worst_unchecked, worst_checked, disowned = _worst_without_and_with(never, alone,
+                                                                       "disowned_matches")
     assert max(worst_unchecked) > 4.0, worst_unchecked
     assert max(worst_checked) < 0.5 and disowned >= 1, (worst_checked, disowned)
 
@@ -409,14 +418,8 @@ def test_of_two_copies_of_a_wall_the_match_nearer_odometry_stands():
     unweighed = override(SlamConfig(), {"front_end.previous_scan_gain": 1.0,
                                         "front_end.odometry_heading_weight": 0.0})
     weighed = override(SlamConfig(), {"front_end.previous_scan_gain": 1.0})
-    worst_unweighed, worst_weighed, held = [], [], 0
-    for seed in range(4):
-        fe, errors = _hall_with_a_wall_held_twice(unweighed, seed)
-        assert fe.held_to_odometry == 0
-        worst_unweighed.append(errors.max())
-        fe, errors = _hall_with_a_wall_held_twice(weighed, seed)
-        held += fe.held_to_odometry
-        worst_weighed.append(errors.max())
+    worst_unweighed, worst_weighed, held = _worst_without_and_with(unweighed, weighed,
+                                                                   "held_to_odometry")
     assert max(worst_unweighed) > 4.0, worst_unweighed
     assert max(worst_weighed) < 0.5 and held >= 1, (worst_weighed, held)
 
