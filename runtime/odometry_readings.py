@@ -20,15 +20,6 @@ import numpy as np
 from swarmslam.runtime.pose import between
 
 
-def odometry_motion(odometry, last_odometry, have_odometry: bool) -> np.ndarray:
-    """Odometry's motion since ``last_odometry`` (zero at the first reading); the reading is
-    copied into ``last_odometry`` (callers may reuse their array)."""
-    odometry = np.asarray(odometry, dtype=np.float64)
-    delta = between(odometry, last_odometry) if have_odometry else np.zeros(3)
-    last_odometry[:] = odometry
-    return delta
-
-
 class OdometryReadings:
     """The readings so far, and what the next one predicts (see module doc)."""
 
@@ -58,7 +49,8 @@ class OdometryReadings:
         first = not self.have
         if first:
             self.stale_scans = 0
-        delta = odometry_motion(odometry, self.last, self.have)
+        delta = np.zeros(3) if first else between(odometry, self.last)
+        self.last[:] = odometry  # (a copy: callers may reuse their array)
         self.reading_scans = self.stale_scans + 1
         self.reading_step[:2] = delta[:2] / self.reading_scans
         self.stale_scans = 0
