@@ -20,6 +20,8 @@ def test_the_json_records_the_code_the_machine_and_the_conditions(tmp_path):
     assert re.fullmatch(r"[0-9a-f]{40}", meta["commit"]) and isinstance(meta["dirty"], bool)
     assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\+00:00", meta["date"])
     assert meta["cpu"] and meta["cores"] >= 1 and meta["cores_usable"] >= 1
+    # the CPU the kernels were compiled for, as LLVM names it (a model name may not tell)
+    assert re.fullmatch(r"[a-z][a-z0-9_.-]*", meta["cpu_target"])
     assert meta["python"].count(".") == 2 and meta["numba"] and meta["numpy"]
     assert meta["command"] and isinstance(meta["shared_machine"], bool)
 

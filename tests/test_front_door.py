@@ -37,7 +37,7 @@ def _posegraph(chi2=215.8302, ms=8.84):
         "chi2": chi2, "chi2_g2o": 215.830, "ms_median": ms, "g2o_ms": 12.0}},
         "meta": {"commit": "0123456789abcdef", "dirty": False, "date": "2026-11-25T20:00:00",
                  "command": "swarmslam bench posegraph --json p.json", "cpu": "CPU X",
-                 "cores": 2, "python": "3.11", "numba": "0.68", "shared_machine": False}}
+                 "cpu_target": "znver4", "cores": 2, "python": "3.11", "numba": "0.68", "shared_machine": False}}
 
 
 def test_a_report_shows_the_json_figures_and_a_check_fails_when_they_change(tmp_path):
@@ -51,6 +51,7 @@ def test_a_report_shows_the_json_figures_and_a_check_fails_when_they_change(tmp_
     text = page.read_text()
     assert "| INTEL | 215.830 | 215.830 | 8.8 | 12 |" in text
     assert "swarmslam bench posegraph --json p.json" in text and "Commit 0123456" in text
+    assert "CPU X (znver4) × 2 cores" in text
     assert "nothing else heavy running" in text and "χ² as g2o's — **met**" in text
     assert readme.read_text().endswith(f"{END}\n\nrest\n") and "old" not in readme.read_text()
     assert bench_report(results, page, readme, check=True, echo=lambda text: None) == 0

@@ -21,6 +21,7 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
+import llvmlite.binding
 import numba
 import numpy as np
 
@@ -39,6 +40,13 @@ def cpu_model() -> str:
     except OSError:
         pass
     return platform.processor() or platform.machine()
+
+
+def cpu_target() -> str:
+    """The CPU numba compiles the kernels for (LLVM's name: ``znver3``, ``znver4``, ...). Two
+    machines alike to ``/proc/cpuinfo``'s model name ("AMD EPYC") can differ here, and with
+    them the kernels' vector width and the figures' speed."""
+    return llvmlite.binding.get_host_cpu_name()
 
 
 # What a benchmark runs: a change elsewhere (its own results, the docs, the tests) leaves the
@@ -130,7 +138,7 @@ def meta(watch: Watch | None = None) -> dict:
             "command": " ".join(["swarmslam", *sys.argv[1:]])
             if Path(sys.argv[0]).name in ("swarmslam", "cli.py", "__main__.py")
             else " ".join(sys.argv),
-            "cpu": cpu_model(), "cores": os.cpu_count(),
+            "cpu": cpu_model(), "cpu_target": cpu_target(), "cores": os.cpu_count(),
             "cores_usable": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
             else os.cpu_count(),
             "python": platform.python_version(), "numpy": np.__version__,

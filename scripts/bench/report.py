@@ -55,7 +55,8 @@ def ran_where(meta: dict) -> str:
     shared = {True: "shared with another benchmark or test run",
               False: "nothing else heavy running"}.get(meta.get("shared_machine"),
                                                        "sharing not recorded")
-    return (f"Commit {commit}, {meta.get('date', '?')[:10]}, {meta.get('cpu', '?')} × "
+    return (f"Commit {commit}, {meta.get('date', '?')[:10]}, {meta.get('cpu', '?')}"
+            f"{' (' + meta['cpu_target'] + ')' if meta.get('cpu_target') else ''} × "
             f"{meta.get('cores', '?')} cores, Python {meta.get('python', '?')}, numba "
             f"{meta.get('numba', '?')}; {shared}.")
 
