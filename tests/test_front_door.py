@@ -37,7 +37,8 @@ def _posegraph(chi2=215.8302, ms=8.84):
         "chi2": chi2, "chi2_g2o": 215.830, "ms_median": ms, "g2o_ms": 12.0}},
         "meta": {"commit": "0123456789abcdef", "dirty": False, "date": "2026-11-25T20:00:00",
                  "command": "swarmslam bench posegraph --json p.json", "cpu": "CPU X",
-                 "cpu_target": "znver4", "cores": 2, "python": "3.11", "numba": "0.68", "shared_machine": False}}
+                 "cpu_target": "znver4", "cores": 2, "python": "3.11", "numba": "0.68",
+                 "shared_machine": False}}
 
 
 def test_a_report_shows_the_json_figures_and_a_check_fails_when_they_change(tmp_path):
