@@ -323,7 +323,7 @@ class ScanMatcher:
         s[S_STAG_TOL] = sw.stagnation_tol
         s[S_TARGET] = sw.target_value
         s[S_MAX_EVALS] = sw.max_evaluations
-        s[S_STALL_IT] = sw.stall_iterations
+        s[S_STALL_IT] = sw.stall_window
         s[S_STALL_TOL] = sw.stall_tol
         s[S_STRIDE] = c.stride
         s[S_GLOBAL_POINTS] = c.global_points

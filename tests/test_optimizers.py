@@ -5,6 +5,7 @@ import pytest
 
 from swarmslam.runtime.config import MatcherConfig
 from swarmslam.runtime.optimizers import SwarmConfig, SwarmOptimizer
+from swarmslam.runtime.scan_matcher import S_STALL_IT, ScanMatcher
 
 OPTIMIZERS = ["pso", "abc", "fa"]
 
@@ -92,7 +93,7 @@ def test_stagnation_halts_on_a_flat_function(name):
     assert r.iterations == 51
 
 
-@pytest.mark.parametrize("name", OPTIMIZERS)
+@pytest.mark.parametrize("name", [n for n in OPTIMIZERS if n != "fa"])
 def test_stall_rule_halts_when_the_best_stops_gaining(name):
     # Values jump at random in [5, 5.4], so the spread settles late if ever (the paper's rule
     # 2 needs 50 unchanged iterations) while nothing beats the first iteration's best by 0.4.
@@ -109,6 +110,21 @@ def test_stall_rule_halts_when_the_best_stops_gaining(name):
     r = SwarmOptimizer(SwarmConfig(optimizer=name, stall_iterations=12, stall_tol=1e-12),
                        dim=3, seed=1).minimize(sphere, [-5] * 3, [5] * 3)
     assert r.iterations > 13
+
+
+def test_a_firefly_swarm_runs_on_past_a_stall():
+    # Its brightest member only walks at random: the best gains in bursts, which the stall
+    # rule would take for a settled swarm (9.4% of Intel's matches with no guess failed).
+    draws = np.random.default_rng(0)
+    noisy = lambda x: 5.0 + 0.4 * draws.random(x.shape[0])  # noqa: E731
+    on = SwarmConfig(optimizer="fa", max_iterations=200, stall_iterations=12, stall_tol=0.5)
+    assert on.stall_window == 0
+    assert SwarmOptimizer(on, dim=2, seed=0).minimize(noisy, [0, 0], [1, 1]).iterations > 50
+    assert MatcherConfig.for_optimizer("fa").swarm.stall_window == 0
+    assert MatcherConfig.for_optimizer("abc").swarm.stall_window == 30
+    # the matcher's compiled swarm reads the same window
+    assert ScanMatcher(MatcherConfig.for_optimizer("fa")).settings[S_STALL_IT] == 0
+    assert ScanMatcher(MatcherConfig.for_optimizer("pso")).settings[S_STALL_IT] == 30
 
 
 def test_the_matcher_swarm_stops_on_a_stall_and_the_papers_does_not():

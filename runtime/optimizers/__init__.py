@@ -130,7 +130,7 @@ class SwarmOptimizer:
             c.stagnation_tol,
             c.target_value,
             c.max_evaluations,
-            c.stall_iterations,
+            c.stall_window,
             c.stall_tol,
         )
         start(self.kind, self.ws)
