@@ -10,6 +10,13 @@ from swarmslam.runtime.scan_matcher import S_STALL_IT, ScanMatcher
 OPTIMIZERS = ["pso", "abc", "fa"]
 
 
+def noisy_flat(seed=0):
+    """Values at random in [5, 5.4], a fresh stream each call: the spread settles late if
+    ever, and nothing beats the first iteration's best by 0.4."""
+    draws = np.random.default_rng(seed)
+    return lambda x: 5.0 + 0.4 * draws.random(x.shape[0])
+
+
 def sphere(x):
     return np.sum((x - np.array([0.3, -1.2, 0.7])[: x.shape[1]]) ** 2, axis=1)
 
@@ -97,8 +104,7 @@ def test_stagnation_halts_on_a_flat_function(name):
 def test_stall_rule_halts_when_the_best_stops_gaining(name):
     # Values jump at random in [5, 5.4], so the spread settles late if ever (the paper's rule
     # 2 needs 50 unchanged iterations) while nothing beats the first iteration's best by 0.4.
-    draws = np.random.default_rng(0)
-    noisy = lambda x: 5.0 + 0.4 * draws.random(x.shape[0])  # noqa: E731
+    noisy = noisy_flat()
     off = SwarmConfig(optimizer=name, max_iterations=200)
     assert SwarmOptimizer(off, dim=2, seed=0).minimize(noisy, [0, 0], [1, 1]).iterations > 50
     on = SwarmConfig(optimizer=name, max_iterations=200, stall_iterations=12, stall_tol=0.5)
@@ -115,8 +121,7 @@ def test_stall_rule_halts_when_the_best_stops_gaining(name):
 def test_a_firefly_swarm_runs_on_past_a_stall():
     # Its brightest member only walks at random: the best gains in bursts, which the stall
     # rule would take for a settled swarm (9.4% of Intel's matches with no guess failed).
-    draws = np.random.default_rng(0)
-    noisy = lambda x: 5.0 + 0.4 * draws.random(x.shape[0])  # noqa: E731
+    noisy = noisy_flat()
     on = SwarmConfig(optimizer="fa", max_iterations=200, stall_iterations=12, stall_tol=0.5)
     assert on.stall_window == 0
     assert SwarmOptimizer(on, dim=2, seed=0).minimize(noisy, [0, 0], [1, 1]).iterations > 50
