@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from swarmslam.runtime.config import SensorConfig
 from swarmslam.runtime.pose import between, compose, transform_points
 from swarmslam.runtime.scan import PointScan
 from swarmslam.runtime.writers import write_json_atomic
@@ -149,12 +150,13 @@ def audit_scans(scans, stamps, relations: Relations, inlier_distance: float = IN
 
 
 def log_scans(log_path) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
-    """Every laser record's valid points in the robot's frame, its timestamp and the odometry
-    stamped with it."""
+    """Every laser record's valid points in the robot's frame (as the SLAM's default sensor
+    takes them), its timestamp and the odometry stamped with it."""
     lasers = read_carmen(log_path).lasers
+    sensor = SensorConfig()
     scans = []
     for record in lasers:
-        scan = robot_frame_scan(record, PointScan(len(record.ranges)))
+        scan = robot_frame_scan(record, PointScan(len(record.ranges)), sensor)
         scans.append(scan.buffer[: scan.count].copy())
     return (scans, np.array([r.timestamp for r in lasers], dtype=np.float64),
             np.array([r.odometry for r in lasers], dtype=np.float64).reshape(-1, 3))

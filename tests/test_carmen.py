@@ -4,6 +4,7 @@ import math
 import numpy as np
 import pytest
 
+from swarmslam.runtime.config import SensorConfig, SlamConfig, override
 from swarmslam.runtime.scan import PointScan
 from swarmslam.carmen import (
     CarmenFormatError,
@@ -12,7 +13,7 @@ from swarmslam.carmen import (
     read_carmen,
     regular_stream,
 )
-from swarmslam.replay import robot_frame_scan
+from swarmslam.replay import replay_run, robot_frame_scan
 
 FLASER = "FLASER 4 1.0 2.0 50.0 0.5 0.1 0.2 0.3 0.1 0.2 0.3 {t} host {t}\n"
 ODOM = "ODOM 1.0 2.0 0.5 0.0 0.0 0.0 {t} host {t}\n"
@@ -138,12 +139,40 @@ def test_a_flaser_log_says_its_no_return_reading_by_repeating_it(tmp_path, no_re
     arc of points 8.183 m around the robot), and those beams give no point."""
     log = read_carmen(flaser_log(tmp_path, no_return))
     assert {r.max_range for r in log.lasers} == {no_return}
-    scan = robot_frame_scan(log.lasers[0], PointScan(181))
+    scan = robot_frame_scan(log.lasers[0], PointScan(181), SensorConfig())
     assert scan.count == 91  # the wall's beams, none of the empty half
     assert np.all(np.hypot(*scan.points.T) < 7.0 + 1e-9)
     # a maximum given by the caller stands
     assert {r.max_range for r in read_carmen(flaser_log(tmp_path, no_return), max_range=5.0)
             .lasers} == {5.0}
+
+
+def test_a_scan_keeps_only_the_readings_within_the_sensors_ranges(tmp_path):
+    """A ROBOTLASER1 line's maximum range is the logger's, not the scanner's: fr-clinic's says
+    81.9 m and holds readings of 81.83 m, beyond the SICK LMS's 80 m. The sensor's ranges
+    apply as well, as the runtime's inbox applies them to a live scanner's scans."""
+    line = RL1.replace("20.0 0.01 0 4 1.0 2.0 3.0 25.0", "81.9 0.01 0 4 0.03 2.0 81.83 81.91")
+    (record,) = read_carmen(write(tmp_path, line.format(t=1.0))).lasers
+    assert record.max_range == 81.9
+
+    def ranges(sensor):
+        scan = robot_frame_scan(record, PointScan(4), sensor)  # (the laser's place: ranges)
+        return np.hypot(*(scan.points - record.laser_offset[:2]).T).round(2).tolist()
+
+    assert ranges(SensorConfig()) == [2.0]  # 0.05 m < r < 80 m
+    assert ranges(SensorConfig(min_range=0.0, max_range=100.0)) == [0.03, 2.0, 81.83]
+    assert ranges(SensorConfig(min_range=0.0, max_range=2.0)) == [0.03]
+
+
+def test_a_replay_takes_the_configured_sensors_ranges(tmp_path):
+    """The walls are 3–7 m away: a sensor that reads no farther than 2 m has no usable scan,
+    and the run says so rather than ok."""
+    log = flaser_log(tmp_path, 81.83, scans=5)
+    short = override(SlamConfig(), {"sensor.max_range": 2.0})
+    metrics, _ = replay_run(log, config=short, label="short")
+    assert metrics["scans_refused"] == 5 and metrics["status"] != "ok"
+    metrics, _ = replay_run(log, config=override(short, {"sensor.max_range": 5.0}), label="5 m")
+    assert metrics["scans_refused"] == 0 and metrics["status"] == "ok"
 
 
 def test_no_return_is_the_least_recurring_value_with_nothing_measured_beyond_it():

@@ -20,6 +20,7 @@ from mcap.reader import make_reader
 
 import swarmslam.rerun_view as rerun_view
 import swarmslam.run_view as run_view
+from swarmslam.runtime.config import SensorConfig
 from swarmslam.runtime.scan import PointScan
 from swarmslam.runtime.writers import write_bytes_atomic
 from swarmslam.bench.slam import plot_run
@@ -92,7 +93,7 @@ def test_recordings_hold_the_run_and_change_nothing(hall_log, tmp_path):
     config_bins = len(topics["/scan"][0][2]["ranges"])
     for record, (schema, log_time, message) in zip(lasers, topics["/scan"]):
         assert schema == "foxglove.LaserScan" and log_time == round(record.timestamp * 1e9)
-        pts = robot_frame_scan(record, scan).points
+        pts = robot_frame_scan(record, scan, SensorConfig()).points
         r = np.hypot(pts[:, 0], pts[:, 1])
         k = np.floor((np.arctan2(pts[:, 1], pts[:, 0]) + math.pi) / (2 * math.pi) * config_bins
                      + 0.5).astype(int) % config_bins

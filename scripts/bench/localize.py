@@ -133,7 +133,7 @@ def bench_log(name: str, log_path: Path, session: Path, queries: int, seed: int,
     progress = Progress(queries, f"{name} relocalize")
     for k in picks:
         k = int(k)
-        robot_frame_scan(lasers[k], scan)
+        robot_frame_scan(lasers[k], scan, localizer.config.sensor)
         localizer.reset(seed=localizer.seed)  # each query as on a fresh start
         t = time.perf_counter()
         answer = relocalizer.relocalize(scan)
@@ -177,7 +177,8 @@ def confirm_from(localizer, lasers, first: int, last: int, scan: PointScan):
     streams restart from the localizer's seed, as on a fresh start."""
     localizer.reset(seed=localizer.seed)
     for m in range(first, last + 1):
-        localizer.step(robot_frame_scan(lasers[m], scan), lasers[m].odometry, lasers[m].timestamp)
+        localizer.step(robot_frame_scan(lasers[m], scan, localizer.config.sensor),
+                       lasers[m].odometry, lasers[m].timestamp)
     if localizer.phase != TRACKING:
         return Ambiguous(tuple(localizer.candidates()), (), localizer.status)
     return Located(localizer.pose(), 1.0)
@@ -197,7 +198,8 @@ def tracking(name: str, lasers, session: Path, truth, echo=print) -> dict:
     scan = PointScan(max(len(r.ranges) for r in lasers))
     progress = Progress(len(lasers) - half, f"{name} tracking")
     for record in lasers[half:]:
-        runtime.process(robot_frame_scan(record, scan), record.odometry, record.timestamp)
+        runtime.process(robot_frame_scan(record, scan, runtime.config.sensor), record.odometry,
+                        record.timestamp)
         progress.update(note=runtime.status)
     progress.close()
     _, poses = runtime.slam.trajectory()

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from swarmslam.runtime.config import SensorConfig
 from swarmslam.runtime.pose import between
 from swarmslam.runtime.scan import PointScan
 from swarmslam.runtime.scan_matcher import MatcherConfig, ScanMatcher
@@ -34,8 +35,10 @@ EQ24_PAIRS = 50
 def load_pairs(path: Path, limit: int | None = None):
     """Scans (as point buffers) and reference relative poses of consecutive keyframes."""
     log = read_carmen(require(path))
+    sensor = SensorConfig()  # the logs' SICK LMS, as the SLAM takes it
     scans = [
-        PointScan.from_ranges(r.ranges, r.angles, 0.0, r.max_range, capacity=len(r.ranges))
+        PointScan.from_ranges(r.ranges, r.angles, sensor.min_range,
+                              min(r.max_range, sensor.max_range), capacity=len(r.ranges))
         for r in log.lasers
     ]
     poses = log.scan_poses()

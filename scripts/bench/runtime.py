@@ -58,12 +58,13 @@ def rss_kib() -> tuple[int, int]:
     return fields.get("VmRSS", 0), fields.get("VmHWM", 0)
 
 
-def robot_frame_scans(log):
-    """Each laser record's points in the robot frame, as (points, count, odometry, stamp)."""
+def robot_frame_scans(log, sensor):
+    """Each laser record's points in the robot frame (valid within ``sensor``'s ranges), as
+    (points, count, odometry, stamp)."""
     out = []
     scan = PointScan(max(len(r.ranges) for r in log.lasers))
     for r in log.lasers:
-        pts = robot_frame_scan(r, scan).points.copy()
+        pts = robot_frame_scan(r, scan, sensor).points.copy()
         out.append((pts, len(pts), np.asarray(r.odometry, dtype=np.float64), r.timestamp))
     return out
 
@@ -249,11 +250,11 @@ def bench_runtime(data_dir: Path, optimizer="abc", realtime_minutes=2.0, traced_
     log = read_carmen(log_path)
     if limit:
         log.lasers = log.lasers[:limit]
-    scans = robot_frame_scans(log)
     relations = read_relations(rel_path)
     config = override(config or SlamConfig(), {"matcher.swarm.optimizer": optimizer,
                                                "runtime.schedule": "budgeted",
-                                     "capacity.max_scans": len(scans) + 1})
+                                               "capacity.max_scans": len(log.lasers) + 1})
+    scans = robot_frame_scans(log, config.sensor)
     rc = config.runtime
     result = {"benchmark": "runtime", "log": str(log_path), "optimizer": optimizer, "seed": seed,
               "runtime_config": {"rate_hz": rc.rate_hz, "tick_budget_s": rc.tick_budget}}
