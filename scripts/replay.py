@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+from dataclasses import fields
 
 import numpy as np
 
@@ -28,14 +29,44 @@ from swarmslam.run_view import frame_of
 from swarmslam.tum import write_tum
 
 
+def node_bound(lasers, config: SlamConfig | None, odometry: bool) -> int:
+    """The most nodes a replay of ``lasers`` can make: one per scan; with odometry, no more
+    than twice what odometry's path and turn make in `node_distance` and `node_angle` (a
+    node is made once the motion since the last exceeds one of them; odometry's path errs
+    by a few percent)."""
+    most = len(lasers) + 1
+    readings = np.array([r.odometry for r in lasers], dtype=np.float64).reshape(-1, 3)
+    if not odometry or not np.all(np.isfinite(readings)):
+        return most
+    steps = np.diff(readings, axis=0)
+    path = float(np.hypot(steps[:, 0], steps[:, 1]).sum())
+    turn = float(np.abs(np.remainder(steps[:, 2] + math.pi, 2 * math.pi) - math.pi).sum())
+    fe = (config or SlamConfig()).front_end
+    return min(most, 2 * math.ceil(path / fe.node_distance + turn / fe.node_angle) + 2)
+
+
 def replay_config(config: SlamConfig | None = None, optimizer: str | None = None,
-                  scans: int = 0, schedule: str = "lockstep") -> SlamConfig:
+                  scans: int = 0, schedule: str = "lockstep", nodes: int = 0) -> SlamConfig:
     """``config`` (default: the defaults) for a replay: ``optimizer`` if given, the trajectory
     sized for the log's ``scans``, and the runtime's ``schedule`` (lockstep: the whole back
-    end every tick, bit for bit repeatable)."""
+    end every tick, bit for bit repeatable).
+
+    In lockstep the pose graph is sized for the log's ``nodes`` too (:func:`node_bound`),
+    its edges in the configuration's proportion, where the configuration holds fewer. A
+    robot's capacities are fixed before it knows how long it will run (docs/runtime.md §4),
+    and at capacity the map freezes (Intel at 800 nodes: eT 4.8 m); a log's length is known
+    before its replay starts. The budgeted schedule replays as the robot runs, with the
+    configuration's capacities (it commits them to memory at start-up)."""
     config = config or SlamConfig()
     changes = {"capacity.max_scans": max(config.capacity.max_scans, scans),
                "runtime.schedule": schedule}
+    cap = config.capacity
+    if schedule == "lockstep" and nodes > cap.max_nodes:
+        largest = {f.name: f.metadata["le"] for f in fields(cap)}  # the fields' bounds
+        nodes = min(nodes, largest["max_nodes"])
+        changes["capacity.max_nodes"] = nodes
+        changes["capacity.max_edges"] = min(largest["max_edges"], max(
+            cap.max_edges, math.ceil(cap.max_edges / cap.max_nodes * nodes)))
     if optimizer is not None:
         changes["matcher.swarm.optimizer"] = optimizer
     return override(config, changes)
@@ -151,11 +182,11 @@ def replay(log_path, relations_path=None, optimizer: str | None = None, odometry
 
 def replay_runtime(scans: int, optimizer=None, seed=0, config: SlamConfig | None = None,
                    schedule: str = "lockstep", localize=None, resume=None,
-                   session_changes: dict | None = None) -> SlamRuntime:
-    """The runtime a replay of ``scans`` scans runs: new, localizing in a session, or
-    extending one from an unknown place."""
+                   session_changes: dict | None = None, nodes: int = 0) -> SlamRuntime:
+    """The runtime a replay of ``scans`` scans (making at most ``nodes`` nodes) runs: new,
+    localizing in a session, or extending one from an unknown place."""
     if localize is None and resume is None:
-        return SlamRuntime(replay_config(config, optimizer, scans, schedule), seed=seed)
+        return SlamRuntime(replay_config(config, optimizer, scans, schedule, nodes), seed=seed)
     if config is not None:
         raise ValueError("a localized or resumed replay takes its configuration from the "
                          "session (session_changes may change its search and tracking)")
@@ -208,7 +239,7 @@ def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, s
         config = bag_sweep(lasers, config, warn=lambda text: print(f"{log_path}: {text}",
                                                                    file=sys.stderr))
     runtime = replay_runtime(len(lasers), optimizer, seed, config, schedule, localize, resume,
-                             session_changes)
+                             session_changes, node_bound(lasers, config, odometry))
     config = runtime.config
     slam = runtime.slam
     # Every kernel compiled or loaded before the clock starts, as a robot warms up before its

@@ -1,10 +1,15 @@
 """``swarmslam replay``: what its timing covers (scripts/replay.py)."""
 
 import json
+import math
 import subprocess
 import sys
 
+import numpy as np
+
 from swarmslam.cli import main
+from swarmslam.replay import node_bound, replay_config, replay_run
+from swarmslam.runtime.config import SlamConfig, override
 
 PROBE = """
 import json, sys
@@ -35,3 +40,41 @@ def test_the_kernels_are_warm_before_the_replay_clock_starts(tmp_path):
     report = json.loads(out.strip().splitlines()[-1])
     assert all(n >= 1 for n in report["seen"].values()), report
     assert report["warm_up_seconds"] > 0
+
+
+def test_a_replay_sizes_the_pose_graph_for_the_log_in_lockstep(tmp_path):
+    """A log's length is known before its replay starts: in lockstep the graph holds a node per
+    scan at most, whatever the configuration's capacity, so a long log never freezes its map.
+    The budgeted schedule replays as the robot runs, within the configuration's capacities."""
+    log = tmp_path / "s.clf"
+    assert main(["simlog", str(log), "--scanner", "sick-1", "--rate", "5",
+                 "--seconds", "12"]) == 0
+    small = override(SlamConfig(), {"capacity.max_nodes": 3, "capacity.max_edges": 12})
+    sized = replay_config(small, scans=60, nodes=61)
+    assert (sized.capacity.max_nodes, sized.capacity.max_edges) == (61, 244)
+    assert replay_config(small, scans=60, schedule="budgeted", nodes=61).capacity == small.capacity
+    assert replay_config(None, scans=60, nodes=61).capacity == SlamConfig().capacity  # room
+    metrics, _ = replay_run(log, config=small, label="lockstep")
+    assert metrics["status"] == "ok" and metrics["nodes"] > 3
+    metrics, _ = replay_run(log, config=small, schedule="budgeted", label="budgeted")
+    assert metrics["nodes"] == 3 and metrics["status"].startswith("capacity reached")
+
+
+def test_a_replays_node_bound_holds_what_odometry_allows():
+    """A node needs `node_distance` of path or `node_angle` of turn since the last: a robot
+    that drives 10 m and turns a full circle makes no more than 20 + 13 nodes (the bound
+    doubles that); scans only, or odometry missing, bound it by the scans."""
+
+    class Record:
+        def __init__(self, odometry):
+            self.odometry = np.asarray(odometry, dtype=np.float64)
+
+    drive = [Record((0.1 * k, 0.0, 0.0)) for k in range(101)]  # 10 m in 100 steps
+    turn = [Record((10.0, 0.0, math.remainder(k * math.pi / 50, 2 * math.pi)))
+            for k in range(1, 101)]  # a full circle, wrapping at ±π
+    lasers = drive + turn
+    assert node_bound(lasers, None, True) == 2 * math.ceil(20 + 2 * math.pi / 0.5) + 2
+    assert node_bound(lasers, None, False) == len(lasers) + 1
+    lasers[5] = Record((math.nan, 0.0, 0.0))
+    assert node_bound(lasers, None, True) == len(lasers) + 1
+    assert node_bound(drive[:3], None, True) == 4  # never more than a node per scan
