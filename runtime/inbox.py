@@ -21,7 +21,8 @@ import threading
 import numpy as np
 
 from swarmslam.runtime.config import InputConfig
-from swarmslam.runtime.scan import PointScan, finite_points, ranges_to_points
+from swarmslam.runtime.scan import (PointScan, finite_points, ranges_to_points, usable_beams,
+                                    usable_points)
 
 
 # What a record may say (docs/runtime.md §7): stamps are seconds since 1970 or since the log
@@ -64,6 +65,7 @@ class ScanInbox:
         self.odometry_non_finite = 0  # readings dropped from their scan
         self.odometry_out_of_range = 0  # readings no robot gives (beyond the bounds below)
         self.odometry_jumps = 0  # readings further than the robot moves, dropped
+        self.cut = 0  # scans with more usable points than max_points: the rest dropped
         self._last_stamp = -math.inf  # the newest scan's timestamp
         self._last_reading = np.zeros(3)  # the newest finite odometry reading, and its time
         self._reading_stamp = math.nan
@@ -80,6 +82,9 @@ class ScanInbox:
                 raise ValueError(f"{ranges.shape[0]} ranges but {angles.shape[0]} angles")
             n = ranges_to_points(ranges, angles, self.min_range, self.max_range,
                                  self._pending.buffer, self._pending.sweep)
+            if n == self._pending.capacity and usable_beams(
+                    ranges, angles, self.min_range, self.max_range) > n:
+                self.cut += 1
             return self._accept(n, stamp, odometry)
 
     def put_points(self, points, count: int, stamp: float, odometry=None, sweep=None) -> bool:
@@ -93,8 +98,10 @@ class ScanInbox:
             if sweep.shape[0] < min(int(count), points.shape[0]):
                 raise ValueError(f"sweep: {sweep.shape[0]} places for {count} points")
         with self._lock:
-            n = finite_points(points, min(int(count), points.shape[0]), self._pending.buffer,
-                              sweep, self._pending.sweep)
+            count = min(int(count), points.shape[0])
+            n = finite_points(points, count, self._pending.buffer, sweep, self._pending.sweep)
+            if n == self._pending.capacity and usable_points(points, count, sweep) > n:
+                self.cut += 1
             return self._accept(n, stamp, odometry)
 
     def _accept(self, n, stamp, odometry) -> bool:
@@ -180,7 +187,7 @@ class ScanInbox:
                 "bad_stamp_scans": self.bad_stamps,
                 "odometry_non_finite": self.odometry_non_finite,
                 "odometry_out_of_range": self.odometry_out_of_range,
-                "odometry_jumps": self.odometry_jumps}
+                "odometry_jumps": self.odometry_jumps, "cut_scans": self.cut}
 
     def skipped(self) -> str:
         """The records screened out, for a status line ('' when none were)."""
@@ -190,7 +197,7 @@ class ScanInbox:
         return {"received": self.received, "stale": self.stale, "empty": self.empty,
                 "bad_stamps": self.bad_stamps, "odometry_non_finite": self.odometry_non_finite,
                 "odometry_out_of_range": self.odometry_out_of_range,
-                "odometry_jumps": self.odometry_jumps}
+                "odometry_jumps": self.odometry_jumps, "cut": self.cut}
 
     def restore(self, state: dict) -> None:
         """The counts go on; the previous stamp and reading do not (a resumed session may
@@ -201,11 +208,13 @@ class ScanInbox:
         self.odometry_non_finite = int(state.get("odometry_non_finite", 0))
         self.odometry_jumps = int(state.get("odometry_jumps", 0))
         self.odometry_out_of_range = int(state.get("odometry_out_of_range", 0))
+        self.cut = int(state.get("cut", 0))
 
 
 SKIPPED = {"empty_scans": "scans with no return", "bad_stamp_scans": "bad timestamps",
            "odometry_non_finite": "non-finite odometry",
-           "odometry_out_of_range": "odometry out of range", "odometry_jumps": "odometry jumps"}
+           "odometry_out_of_range": "odometry out of range", "odometry_jumps": "odometry jumps",
+           "cut_scans": "scans' points beyond sensor.max_points"}
 
 
 def skipped_text(counts: dict) -> str:

@@ -88,6 +88,29 @@ def directions_to_points(ranges, directions, min_range, max_range, out, sweep=No
 
 
 @njit(cache=True)
+def usable_beams(ranges, angles, min_range, max_range):
+    """How many beams :func:`ranges_to_points` would make points of, its capacity aside."""
+    n = 0
+    for i in range(ranges.shape[0]):
+        if valid_reading(ranges[i], min_range, max_range) and math.isfinite(angles[i]):
+            n += 1
+    return n
+
+
+@njit(cache=True)
+def usable_points(points, count, sweep=None):
+    """How many of ``points[:count]`` :func:`finite_points` would keep, its capacity aside."""
+    n = 0
+    for i in range(min(count, points.shape[0])):
+        if not (math.isfinite(points[i, 0]) and math.isfinite(points[i, 1])):
+            continue
+        if sweep is not None and not 0.0 <= sweep[i] <= 1.0:
+            continue
+        n += 1
+    return n
+
+
+@njit(cache=True)
 def finite_points(points, count, out, sweep=None, sweep_out=None):
     """Copy the finite ones among ``points[:count]`` into ``out`` (at most its capacity, in
     order); return how many. ``sweep_out``, if given, gets each point's place in its sweep:

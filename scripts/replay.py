@@ -29,6 +29,11 @@ from swarmslam.run_view import frame_of
 from swarmslam.tum import write_tum
 
 
+def _largest(section, name: str):
+    """The largest value the configuration takes in ``section``'s field ``name``."""
+    return next(f.metadata["le"] for f in fields(section) if f.name == name)
+
+
 def node_bound(lasers, config: SlamConfig | None, odometry: bool) -> int:
     """The most nodes a replay of ``lasers`` can make: one per scan; with odometry, no more
     than twice what odometry's path and turn make in `node_distance` and `node_angle` (a
@@ -46,10 +51,14 @@ def node_bound(lasers, config: SlamConfig | None, odometry: bool) -> int:
 
 
 def replay_config(config: SlamConfig | None = None, optimizer: str | None = None,
-                  scans: int = 0, schedule: str = "lockstep", nodes: int = 0) -> SlamConfig:
+                  scans: int = 0, schedule: str = "lockstep", nodes: int = 0,
+                  beams: int = 0) -> SlamConfig:
     """``config`` (default: the defaults) for a replay: ``optimizer`` if given, the trajectory
-    sized for the log's ``scans``, and the runtime's ``schedule`` (lockstep: the whole back
-    end every tick, bit for bit repeatable).
+    sized for the log's ``scans``, each stored scan for its largest scan's ``beams`` where
+    the configuration holds fewer points (the runtime keeps a scan's first
+    ``sensor.max_points`` points: a 360° scanner's last sector would be lost), and the
+    runtime's ``schedule`` (lockstep: the whole back end every tick, bit for bit
+    repeatable).
 
     In lockstep the pose graph is sized for the log's ``nodes`` too (:func:`node_bound`),
     its edges in the configuration's proportion, where the configuration holds fewer. A
@@ -60,12 +69,13 @@ def replay_config(config: SlamConfig | None = None, optimizer: str | None = None
     config = config or SlamConfig()
     changes = {"capacity.max_scans": max(config.capacity.max_scans, scans),
                "runtime.schedule": schedule}
+    if beams > config.sensor.max_points:
+        changes["sensor.max_points"] = min(beams, _largest(config.sensor, "max_points"))
     cap = config.capacity
     if schedule == "lockstep" and nodes > cap.max_nodes:
-        largest = {f.name: f.metadata["le"] for f in fields(cap)}  # the fields' bounds
-        nodes = min(nodes, largest["max_nodes"])
+        nodes = min(nodes, _largest(cap, "max_nodes"))
         changes["capacity.max_nodes"] = nodes
-        changes["capacity.max_edges"] = min(largest["max_edges"], max(
+        changes["capacity.max_edges"] = min(_largest(cap, "max_edges"), max(
             cap.max_edges, math.ceil(cap.max_edges / cap.max_nodes * nodes)))
     if optimizer is not None:
         changes["matcher.swarm.optimizer"] = optimizer
@@ -182,11 +192,14 @@ def replay(log_path, relations_path=None, optimizer: str | None = None, odometry
 
 def replay_runtime(scans: int, optimizer=None, seed=0, config: SlamConfig | None = None,
                    schedule: str = "lockstep", localize=None, resume=None,
-                   session_changes: dict | None = None, nodes: int = 0) -> SlamRuntime:
-    """The runtime a replay of ``scans`` scans (making at most ``nodes`` nodes) runs: new,
-    localizing in a session, or extending one from an unknown place."""
+                   session_changes: dict | None = None, nodes: int = 0,
+                   beams: int = 0) -> SlamRuntime:
+    """The runtime a replay of ``scans`` scans (making at most ``nodes`` nodes, of at most
+    ``beams`` beams) runs: new, localizing in a session, or extending one from an unknown
+    place."""
     if localize is None and resume is None:
-        return SlamRuntime(replay_config(config, optimizer, scans, schedule, nodes), seed=seed)
+        return SlamRuntime(replay_config(config, optimizer, scans, schedule, nodes, beams),
+                           seed=seed)
     if config is not None:
         raise ValueError("a localized or resumed replay takes its configuration from the "
                          "session (session_changes may change its search and tracking)")
@@ -238,15 +251,16 @@ def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, s
     if localize is None and resume is None:  # (a session's configuration is its own)
         config = bag_sweep(lasers, config, warn=lambda text: print(f"{log_path}: {text}",
                                                                    file=sys.stderr))
+    beams = max(len(r.ranges) for r in lasers)
     runtime = replay_runtime(len(lasers), optimizer, seed, config, schedule, localize, resume,
-                             session_changes, node_bound(lasers, config, odometry))
+                             session_changes, node_bound(lasers, config, odometry), beams)
     config = runtime.config
     slam = runtime.slam
     # Every kernel compiled or loaded before the clock starts, as a robot warms up before its
     # first tick: the real-time factor is the run's, not the compiler's (after a checkout that
     # changed a source, numba compiles every kernel afresh: docs/runtime.md §8).
     warm_up_seconds = runtime.warm_up()
-    scan = PointScan(max(len(r.ranges) for r in lasers))
+    scan = PointScan(beams)
     latencies = np.zeros(len(lasers))
     progress = Progress(len(lasers), label)
     start_time = time.perf_counter()

@@ -78,3 +78,17 @@ def test_a_replays_node_bound_holds_what_odometry_allows():
     lasers[5] = Record((math.nan, 0.0, 0.0))
     assert node_bound(lasers, None, True) == len(lasers) + 1
     assert node_bound(drive[:3], None, True) == 4  # never more than a node per scan
+
+
+def test_a_replay_keeps_every_beam_of_a_scanner_larger_than_the_configuration(tmp_path):
+    """The runtime keeps a scan's first `sensor.max_points` points: a 720-beam scanner read
+    with a configuration for 400 would lose the last 44% of each sweep. A replay sizes the
+    stored scans for the log's largest scan instead."""
+    log = tmp_path / "a2.clf"
+    assert main(["simlog", str(log), "--scanner", "rplidar-a2", "--rate", "5",
+                 "--seconds", "4"]) == 0
+    small = override(SlamConfig(), {"sensor.max_points": 400})
+    _, runtime = replay_run(log, config=small, label="a2")
+    assert runtime.config.sensor.max_points == 720
+    nodes = runtime.slam.nodes
+    assert nodes.counts[: runtime.slam.graph.n_nodes].max() > 400

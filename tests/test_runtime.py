@@ -25,6 +25,7 @@ from swarmslam.runtime.config import (
     override,
 )
 from swarmslam.runtime.fixed_rate import SlamRuntime
+from swarmslam.runtime.inbox import ScanInbox
 from swarmslam.runtime.pose import between, compose
 from swarmslam.runtime.pose_graph import LOOP
 from swarmslam.runtime.scan import PointScan
@@ -99,6 +100,27 @@ def test_inbox_keeps_the_newest_scan_and_counts_the_stale_ones():
     empty = np.full(len(angles), np.inf)
     assert not runtime.inbox.put_ranges(angles=angles, ranges=empty, stamp=3.0, odometry=None)
     assert runtime.inbox.empty == 1 and runtime.tick() is None
+
+
+def test_inbox_counts_the_scans_it_cuts_to_max_points():
+    """A scan with more usable points than `sensor.max_points` keeps its first ones and is
+    counted (a live scanner faster than its preset); beams with no return do not count
+    towards it."""
+    inbox = ScanInbox(10, 0.1, 8.0)
+    angles = np.linspace(-1.0, 1.0, 15)
+    ranges = np.full(15, 2.0)
+    assert inbox.put_ranges(angles=angles, ranges=ranges, stamp=0.0) and inbox.cut == 1
+    assert inbox.take(PointScan(10), np.zeros(3))[0] and inbox.cut == 1
+    ranges[:5] = np.inf  # 10 usable: all kept
+    assert inbox.put_ranges(angles=angles, ranges=ranges, stamp=1.0) and inbox.cut == 1
+    points = np.c_[np.cos(angles), np.sin(angles)]
+    assert inbox.put_points(points, 15, stamp=2.0) and inbox.cut == 2
+    points[:5] = np.nan
+    assert inbox.put_points(points, 15, stamp=3.0) and inbox.cut == 2
+    assert "2 scans' points beyond sensor.max_points" in inbox.skipped()
+    restored = ScanInbox(10)
+    restored.restore(inbox.state())
+    assert restored.cut == 2
 
 
 def test_slow_matcher_defers_back_end_work_which_completes_later():
