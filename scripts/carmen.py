@@ -98,6 +98,13 @@ class CarmenLog:
 
 
 def flaser_angles(n: int) -> np.ndarray:
+    """A FLASER line's beam angles, which the line does not give: a SICK LMS's by its beam
+    count, as CARMEN guesses them. 180 or 181 beams are 1° apart, 360 or 361 0.5°, from −90°
+    (the even counts leave out the last beam of the 180°); 400 or 401 are the 100° mode's
+    0.25°, centred as the scanner takes them, from −50° (CARMEN starts every FLASER at −90°).
+    Other counts likewise: an odd one spans the 180°, an even one leaves out its last beam."""
+    if n in (400, 401):
+        return math.radians(-50.0) + math.radians(0.25) * np.arange(n)
     step = math.pi / (2 * (n // 2)) if n > 1 else 0.0
     return -math.pi / 2 + step * np.arange(n)
 

@@ -8,6 +8,7 @@ from swarmslam.runtime.config import SensorConfig, SlamConfig, override
 from swarmslam.runtime.scan import PointScan
 from swarmslam.carmen import (
     CarmenFormatError,
+    flaser_angles,
     flaser_no_return,
     odometry_at_scans,
     read_carmen,
@@ -145,6 +146,16 @@ def test_a_flaser_log_says_its_no_return_reading_by_repeating_it(tmp_path, no_re
     # a maximum given by the caller stands
     assert {r.max_range for r in read_carmen(flaser_log(tmp_path, no_return), max_range=5.0)
             .lasers} == {5.0}
+
+
+@pytest.mark.parametrize("beams, first, step", [(181, -90, 1.0), (180, -90, 1.0),
+                                                 (361, -90, 0.5), (360, -90, 0.5),
+                                                 (401, -50, 0.25), (400, -50, 0.25)])
+def test_a_flaser_lines_beams_are_a_sick_lmss_by_their_count(beams, first, step):
+    """A FLASER line gives ranges only: 181 beams are the 180° at 1°, 401 the 100° mode's
+    0.25° either side of the scanner's axis (spread over 180° they would be 0.45° apart)."""
+    degrees = np.degrees(flaser_angles(beams))
+    assert degrees[0] == pytest.approx(first) and np.allclose(np.diff(degrees), step)
 
 
 def test_a_scan_keeps_only_the_readings_within_the_sensors_ranges(tmp_path):
