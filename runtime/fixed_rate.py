@@ -41,7 +41,7 @@ from swarmslam.runtime.config import SensorConfig, SlamConfig, from_dict, overri
 from swarmslam.runtime.inbox import ScanInbox, real_array
 from swarmslam.runtime.localization import Localizer
 from swarmslam.runtime.map_tracking import SavedMap
-from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.scan import PointScan, usable_beams, usable_points
 from swarmslam.runtime.slam import GraphSlam
 from swarmslam.runtime.step_result import StepResult
 from swarmslam.runtime.warm_up import LoopDrive
@@ -223,6 +223,10 @@ class SlamRuntime:
             _, odometry, ranges = drive.next()
             scan.set_ranges(ranges, drive.angles, 0.05, drive.max_range)
             scratch.process(scan, odometry, float(k))
+        # what the inbox counts a scan cut to max_points by, which no scan here reaches
+        usable_beams(ranges, drive.angles, 0.05, drive.max_range)
+        usable_points(scan.buffer, scan.count, scan.sweep)
+        usable_points(scan.buffer, scan.count, None)
         if scratch.slam.loops_closed == 0:
             raise RuntimeError("warm-up closed no loop: the loop-closure kernels stay cold")
         if scratch.slam.back_end.wide.searches == 0:

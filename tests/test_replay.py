@@ -92,3 +92,16 @@ def test_a_replay_keeps_every_beam_of_a_scanner_larger_than_the_configuration(tm
     assert runtime.config.sensor.max_points == 720
     nodes = runtime.slam.nodes
     assert nodes.counts[: runtime.slam.graph.n_nodes].max() > 400
+
+
+def test_the_warm_up_compiles_the_inboxs_count_of_a_cut_scan():
+    """A scan cut to `sensor.max_points` is counted by two compiled kernels that no warm-up
+    scan reaches: the warm-up runs them itself, so the first cut scan of a live run compiles
+    nothing (in a fresh process, as a robot starts)."""
+    probe = ("from swarmslam.runtime.fixed_rate import SlamRuntime\n"
+             "from swarmslam.runtime.scan import usable_beams, usable_points\n"
+             "SlamRuntime().warm_up()\n"
+             "print(len(usable_beams.signatures), len(usable_points.signatures))")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         check=True).stdout
+    assert out.split()[-2:] == ["1", "2"]
