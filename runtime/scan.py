@@ -26,6 +26,23 @@ def sweep_place(i, beams):
     return i / (beams - 1) if beams > 1 else 1.0
 
 
+@njit(cache=True, inline="always")
+def usable_beam(r, a, min_range, max_range):
+    """A beam makes a point when its reading is valid and its angle a number."""
+    return valid_reading(r, min_range, max_range) and math.isfinite(a)
+
+
+@njit(cache=True, inline="always")
+def usable_point(points, i, sweep):
+    """Point ``i`` is kept when both its coordinates are finite and its place in the sweep,
+    if given, is a number in [0, 1]."""
+    if not (math.isfinite(points[i, 0]) and math.isfinite(points[i, 1])):
+        return False
+    if sweep is not None:
+        return 0.0 <= sweep[i] <= 1.0  # (NaN fails too)
+    return True
+
+
 @njit(cache=True)
 def ranges_to_points(ranges, angles, min_range, max_range, out, sweep=None):
     """Write the valid beams' end points into ``out`` (capacity × 2); return how many.
@@ -41,7 +58,7 @@ def ranges_to_points(ranges, angles, min_range, max_range, out, sweep=None):
     for i in range(beams):
         r = ranges[i]
         a = angles[i]
-        if not (valid_reading(r, min_range, max_range) and math.isfinite(a)):
+        if not usable_beam(r, a, min_range, max_range):
             continue
         if n >= cap:
             break
@@ -92,7 +109,7 @@ def usable_beams(ranges, angles, min_range, max_range):
     """How many beams :func:`ranges_to_points` would make points of, its capacity aside."""
     n = 0
     for i in range(ranges.shape[0]):
-        if valid_reading(ranges[i], min_range, max_range) and math.isfinite(angles[i]):
+        if usable_beam(ranges[i], angles[i], min_range, max_range):
             n += 1
     return n
 
@@ -102,11 +119,8 @@ def usable_points(points, count, sweep=None):
     """How many of ``points[:count]`` :func:`finite_points` would keep, its capacity aside."""
     n = 0
     for i in range(min(count, points.shape[0])):
-        if not (math.isfinite(points[i, 0]) and math.isfinite(points[i, 1])):
-            continue
-        if sweep is not None and not 0.0 <= sweep[i] <= 1.0:
-            continue
-        n += 1
+        if usable_point(points, i, sweep):
+            n += 1
     return n
 
 
@@ -120,21 +134,14 @@ def finite_points(points, count, out, sweep=None, sweep_out=None):
     cap = out.shape[0]
     total = min(count, points.shape[0])
     for i in range(total):
-        x = points[i, 0]
-        y = points[i, 1]
-        if not (math.isfinite(x) and math.isfinite(y)):
+        if not usable_point(points, i, sweep):
             continue
-        place = sweep_place(i, total)
-        if sweep is not None:
-            place = sweep[i]
-            if not 0.0 <= place <= 1.0:  # (NaN fails too)
-                continue
         if n >= cap:
             break
-        out[n, 0] = x
-        out[n, 1] = y
+        out[n, 0] = points[i, 0]
+        out[n, 1] = points[i, 1]
         if sweep_out is not None:
-            sweep_out[n] = place
+            sweep_out[n] = sweep_place(i, total) if sweep is None else sweep[i]
         n += 1
     return n
 

@@ -27,6 +27,7 @@ from swarmslam.metrics import is_failure, pair_errors, relative_errors
 from swarmslam.plots import matcher_errors, require_matplotlib
 from swarmslam.progress import Progress
 from swarmslam.bench.record import save_results
+from swarmslam.replay import robot_frame_scan
 
 DATASETS = {"intel": "intel-corrected.log.gz", "aces": "aces-corrected.log.gz"}
 EQ24_PAIRS = 50
@@ -36,11 +37,7 @@ def load_pairs(path: Path, limit: int | None = None):
     """Scans (as point buffers) and reference relative poses of consecutive keyframes."""
     log = read_carmen(require(path))
     sensor = SensorConfig()  # the logs' SICK LMS, as the SLAM takes it
-    scans = [
-        PointScan.from_ranges(r.ranges, r.angles, sensor.min_range,
-                              min(r.max_range, sensor.max_range), capacity=len(r.ranges))
-        for r in log.lasers
-    ]
+    scans = [robot_frame_scan(r, PointScan(len(r.ranges)), sensor) for r in log.lasers]
     poses = log.scan_poses()
     truth = between(poses[1:], poses[:-1])  # pose k+1 in the frame of pose k
     n = len(truth) if limit is None else min(limit, len(truth))
