@@ -220,8 +220,9 @@ class MatcherConfig(Section):
         (2.0, 2.0, 1.6), "half-widths of the box without a guess (m, m, rad)", gt=0)
     guess_window: tuple[float, float, float] = _setting(
         (0.3, 0.3, 0.3), "half-widths of the box around a guess (m, m, rad)", gt=0)
-    grid_cells: int = _setting(1024, "capacity per side of the reference grids", ge=8,
-                              le=8192)
+    grid_cells: int = _setting(2048, "capacity per side of the reference grids (a submap "
+                              "wider than this at `resolution` keeps its points within half "
+                              "of it from the sensor)", ge=8, le=8192)
     scan_to_map: bool = _setting(False, "Alg. 5's scan-to-map fallback (Eq. 16)")
     robot_diameter: float = _setting(0.35, "m, for Eq. 17", gt=0)
     occupied_radius: float = _setting(0.1, "m, ramp around obstacles in the local grid", gt=0)
@@ -736,6 +737,18 @@ SIMULATED_LIDARS = {"rplidar-a1": (360, 0.15, 12.0), "rplidar-a2": (720, 0.15, 1
                     "lms200": (181, 0.05, 50.0)}
 
 
+# A reference grid of 1,024 cells (51 m at 5 cm) holds every submap of a scanner reaching
+# REACH_1024 m: its reach both ways and the few metres its submaps' nodes lie apart. A
+# farther reach gets the default 2,048 (102 m: a SICK's returns to 51 m each way, which is
+# what pins the heading in an open hall; docs/experiments/2026-11-28-far-returns.md).
+REACH_1024 = 20.0
+
+
+def reach_grid_cells(reach: float) -> int:
+    """``matcher.grid_cells`` for a scanner reaching ``reach`` metres."""
+    return 1024 if reach <= REACH_1024 else MatcherConfig().grid_cells
+
+
 def rplidar_points(samples_per_second: float, scan_hz: float) -> int:
     """Points per stored scan for a scanner of this rate (its fastest mode, with margin)."""
     return max(int(samples_per_second / scan_hz * POINTS_MARGIN) + POINTS_SLACK, MIN_POINTS)
@@ -746,7 +759,8 @@ def _rplidar(model: str) -> SlamConfig:
     # A rotation is one sweep, stamped at its end (swarmslam.hardware.driver).
     return override(SlamConfig(), {"sensor.name": f"rplidar-{model}", "sensor.max_range": reach,
                                    "sensor.max_points": rplidar_points(sps, hz),
-                                   "sensor.sweep_seconds": 1.0 / hz, "map.max_range": reach})
+                                   "sensor.sweep_seconds": 1.0 / hz, "map.max_range": reach,
+                                   "matcher.grid_cells": reach_grid_cells(reach)})
 
 
 def simulated(lidar: str = "rplidar-a1", beams: int | None = None, min_range: float | None = None,
@@ -759,10 +773,11 @@ def simulated(lidar: str = "rplidar-a1", beams: int | None = None, min_range: fl
     per second; docs/experiments/2026-11-25-readme-notebook.md); the current figures are the
     demo's own output and ``bench env``'s (docs/results.md)."""
     b, lo, hi = SIMULATED_LIDARS.get(lidar, SIMULATED_LIDARS["rplidar-a1"])
+    reach = hi if max_range is None else max_range
     return override(SlamConfig(), {
         "sensor.name": f"sim-{lidar}", "sensor.max_points": beams or b,
         "sensor.min_range": lo if min_range is None else min_range,
-        "sensor.max_range": hi if max_range is None else max_range,
+        "sensor.max_range": reach, "matcher.grid_cells": reach_grid_cells(reach),
         "matcher.swarm.max_evaluations": 1500, "matcher.refine_evaluations": 300,
         "matcher.predict_first": 1.5, "loop_closure.closure_spacing": 2,
         "capacity.max_nodes": 4000, "capacity.max_edges": 16000, "capacity.max_scans": 20000})
@@ -914,7 +929,7 @@ EXPERT_FIELDS = frozenset({
     "loop_closure.agreement_angle",
     "matcher.surface_bend", "matcher.surface_gap_ratio", "matcher.coarse_radius",
     "matcher.polish_step", "matcher.polish_halvings", "matcher.polish_evaluations",
-    "matcher.grid_cells", "matcher.occupied_radius", "matcher.robot_diameter",
+    "matcher.occupied_radius", "matcher.robot_diameter",
     "matcher.predict_first", "matcher.refine_points", "matcher.swarm.stagnation_tol",
     "matcher.swarm.stall_tol",
     "matcher.swarm.target_value", "matcher.swarm.params",

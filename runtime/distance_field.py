@@ -116,8 +116,8 @@ def surface_end(pts, p, n, gap2, bend, cos_bend, gap_ratio):
 
 
 @njit(cache=True)
-def build_distance_field(pts, n, res, radius, max_gap, inv_c2, field, meta, columns, bend=0.0,
-                         gap_ratio=2.0):
+def build_distance_field(pts, n, res, radius, max_gap, inv_c2, field, meta, columns, spans,
+                         bend=0.0, gap_ratio=2.0):
     """Per-point cost of the nearest reference surface through ``pts[:n]``, at every node.
 
     ``pts`` are in scan order; neighbours closer than ``max_gap`` are joined (0: points only),
@@ -127,7 +127,11 @@ def build_distance_field(pts, n, res, radius, max_gap, inv_c2, field, meta, colu
     the Cauchy kernel ``log(1 + d²/c²)`` with ``inv_c2 = 1/c²``. Both are monotonic in ``d²``,
     so the minimum over surfaces can be taken on either; baking the kernel in here costs one
     pass at build time instead of a logarithm per point per candidate pose. ``columns``
-    (at least a row of ``field`` long) is scratch for the nodes' x (:func:`column_centres`).
+    (at least a row of ``field`` long) is scratch for the nodes' x (:func:`column_centres`),
+    ``spans`` (an integer pair for each row of ``field``) for the columns each row's
+    segments reached: only those take the kernel, the rest of a row is one constant (a wide
+    window is mostly far from every surface; the kernel's pass over all of it cost more than
+    the segments' own, docs/experiments/2026-11-28-far-returns.md).
     """
     fit_window(pts, n, res, radius, field.shape[1], field.shape[0], meta)
     r2 = radius * radius
@@ -142,18 +146,32 @@ def build_distance_field(pts, n, res, radius, max_gap, inv_c2, field, meta, colu
     gap2 = max_gap * max_gap
     cos_bend = math.cos(bend)
     column_centres(ox, res, nx, columns)
+    for i in range(ny):
+        spans[i, 0] = nx
+        spans[i, 1] = -1
     for p in range(n):
         b = surface_end(pts, p, n, gap2, bend, cos_bend, gap_ratio)
-        splat_segment(pts[p, 0], pts[p, 1], pts[b, 0], pts[b, 1], ox, oy, res, radius, nx, ny,
-                      field, columns)
+        ax, ay, bx, by = pts[p, 0], pts[p, 1], pts[b, 0], pts[b, 1]
+        splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field, columns)
+        i0, i1, j0, j1 = segment_box(ax, ay, bx, by, ox, oy, res, radius, nx, ny)
+        if j1 >= j0:
+            for i in range(i0, i1 + 1):
+                spans[i, 0] = min(spans[i, 0], j0)
+                spans[i, 1] = max(spans[i, 1], j1)
     if inv_c2 > 0.0:
         far = math.log1p(r2 * inv_c2)
         meta[R2] = far
         for i in range(ny):
-            for j in range(nx):
+            lo = spans[i, 0]
+            hi = spans[i, 1]
+            for j in range(min(lo, nx)):
+                field[i, j] = far
+            for j in range(lo, hi + 1):
                 v = field[i, j]
                 # Most cells are beyond the radius: one constant, no logarithm.
                 field[i, j] = math.log1p(v * inv_c2) if v < r2 else far
+            for j in range(max(hi + 1, lo), nx):
+                field[i, j] = far
 
 
 @njit(cache=True, inline="always")

@@ -25,7 +25,8 @@ def estimated_bytes(config: SlamConfig) -> dict[str, int]:
     cells = c.matcher.grid_cells
     coarse = cells * c.matcher.resolution / c.matcher.coarse_resolution \
         if c.matcher.coarse_resolution > 0 else 1
-    reference = cells * cells * (4 + 1) + int(coarse) ** 2 * 4  # fields (float32), local grid
+    grid = cells * cells if c.matcher.scan_to_map else 0  # the local grid (uint8)
+    reference = cells * cells * 4 + grid + int(coarse) ** 2 * 4  # fields (float32)
     return {
         "capacity.max_nodes × sensor.max_points (node scans)": nodes * (points * 2 * FLOAT
                                                                         + 9 * FLOAT + 4 * FLOAT),

@@ -77,8 +77,11 @@ class ReferenceMaps:
         grid_cells = cells if grid_cells is None else grid_cells
         self.field = np.zeros((cells, cells), dtype=np.float32)
         self.coarse_field = np.zeros((coarse_cells, coarse_cells), dtype=np.float32)
-        self.columns = np.zeros(cells)  # scratch of the builds (distance_field.column_centres)
+        # scratch of the builds: the nodes' x (distance_field.column_centres), each row's span
+        self.columns = np.zeros(cells)
         self.coarse_columns = np.zeros(coarse_cells)
+        self.spans = np.zeros((cells, 2), dtype=np.int64)
+        self.coarse_spans = np.zeros((coarse_cells, 2), dtype=np.int64)
         self.coarse_meta = np.zeros(N_META, dtype=np.float64)
         self.grid = np.zeros((grid_cells, grid_cells), dtype=np.uint8)
         self.meta = np.zeros(N_META, dtype=np.float64)
@@ -372,7 +375,7 @@ class ScanMatcher:
         coarse = 1
         if c.coarse_resolution > 0:  # the same extent as the fine grid
             coarse = int(np.ceil(c.grid_cells * c.resolution / c.coarse_resolution))
-        return ReferenceMaps(c.grid_cells, coarse)
+        return ReferenceMaps(c.grid_cells, coarse, None if c.scan_to_map else 1)
 
     def new_surfaces(self, capacity: int) -> SurfaceList:
         """A surface list for scans of up to ``capacity`` points (allocate at start-up)."""
@@ -409,6 +412,7 @@ class ScanMatcher:
                 ref.coarse_field,
                 ref.coarse_meta,
                 ref.coarse_columns,
+                ref.coarse_spans,
                 c.surface_bend,
                 c.surface_gap_ratio,
             )
@@ -427,7 +431,7 @@ class ScanMatcher:
         c = self.config
         build_distance_field(scan.buffer, scan.count, c.resolution, c.field_radius, c.max_gap,
                              self._inv_c2(), out.field, out.meta, out.columns,
-                             c.surface_bend, c.surface_gap_ratio)
+                             out.spans, c.surface_bend, c.surface_gap_ratio)
 
     def _inv_c2(self) -> float:
         """The fine field's Cauchy kernel, ``1/c²`` (0: the field holds plain ``d²``)."""

@@ -130,11 +130,15 @@ def test_presets_agree_with_the_hardware_and_simulator_tables():
         assert (m.max_samples_per_second, m.scan_hz, m.max_range) == (sps, hz, reach)
         c = preset(f"rplidar-{name}")
         assert c.sensor.max_points == rplidar_points(sps, hz) and c.map.max_range == reach
+        # the reference grid holds the scanner's reach both ways and its submaps' spread
+        side = c.matcher.grid_cells * c.matcher.resolution
+        assert side >= 2 * (reach + 5.0) and (reach > 20.0) == (c.matcher.grid_cells > 1024)
     assert preset("rplidar-a1").sensor.max_points == 973  # 4000 / 5.5 × 1.25 + 64
     for name, (beams, lo, hi) in SIMULATED_LIDARS.items():
         lidar = SIM_LIDARS[name]
         assert (lidar.beams, lidar.min_range, lidar.max_range) == (beams, lo, hi)
         assert preset(f"sim-{name}").sensor.max_points == beams
+        assert preset(f"sim-{name}").matcher.grid_cells == (1024 if hi <= 20.0 else 2048)
 
 
 def test_config_show_prints_the_defaults_and_a_file_changes_one_field(tmp_path, capsys):

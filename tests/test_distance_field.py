@@ -14,7 +14,7 @@ def build(points, res=0.05, radius=0.5, gap=0.0, cells=512, inv_c2=0.0, bend=0.0
     field = np.zeros((cells, cells), np.float32)
     meta = np.zeros(N_META)
     build_distance_field(points, len(points), res, radius, gap, inv_c2, field, meta,
-                         np.zeros(cells), bend, gap_ratio)
+                         np.zeros(cells), np.zeros((cells, 2), np.int64), bend, gap_ratio)
     return field, meta
 
 
@@ -139,6 +139,24 @@ def test_cauchy_kernel_baked_into_field():
     for q in [(0.2, 0.0), (0.0, 0.35), (1.5, 0.0), (50.0, 0.0)]:
         d2 = field_lookup(plain, m0, *q)
         assert np.isclose(field_lookup(cauchy, m1, *q), np.log1p(100.0 * d2), rtol=0.05)
+
+
+def test_every_node_of_a_wide_window_takes_the_kernel_of_its_plain_distance():
+    # The kernel is taken only over the columns each row's segments reached, the rest of a
+    # row set to the constant: every node must still hold exactly log1p(d²/c²), or the
+    # constant beyond the radius, whether its row was reached or not.
+    rng = np.random.default_rng(7)
+    wall = np.c_[np.linspace(-3.0, 3.0, 40), np.full(40, 2.0)]
+    far = rng.uniform(-20.0, 20.0, size=(12, 2))  # isolated returns: most rows meet none
+    pts = np.concatenate([wall, far])
+    for inv_c2 in (100.0, 204.08):
+        plain, _ = build(pts, radius=0.5, gap=0.5, cells=1024)
+        cauchy, meta = build(pts, radius=0.5, gap=0.5, cells=1024, inv_c2=inv_c2)
+        nx, ny = int(meta[NX]), int(meta[NY])
+        v = plain[:ny, :nx].astype(np.float64)
+        want = np.where(v < 0.25, np.log1p(v * inv_c2), np.log1p(0.25 * inv_c2))
+        assert nx > 700 and ny > 700
+        np.testing.assert_array_equal(cauchy[:ny, :nx], want.astype(np.float32))
 
 
 def listed(points, res=0.05, radius=0.5, gap=1.0, cells=512, inv_c2=0.0, bend=0.0,

@@ -20,7 +20,8 @@ def test_beams_free_ends_occupied_rest_unknown():
     field = np.zeros((256, 256), np.float32)
     grid = np.zeros((256, 256), np.uint8)
     meta = np.zeros(N_META)
-    build_distance_field(pts, len(pts), 0.05, 0.5, 0.5, 0.0, field, meta, np.zeros(256))
+    build_distance_field(pts, len(pts), 0.05, 0.5, 0.5, 0.0, field, meta, np.zeros(256),
+                         np.zeros((256, 2), np.int64))
     build_local_map(pts, len(pts), field, meta, 0.0, 0.1, grid)
 
     def cell(x, y):

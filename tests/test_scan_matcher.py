@@ -220,3 +220,18 @@ def test_a_dense_scan_is_scored_on_a_bounded_share_of_its_points():
     assert np.array_equal(match("abc", ref, cur, guess, **wide).pose,
                           match("abc", ref, cur, guess, stride=4, global_points=0,
                                 refine_points=0).pose)
+
+
+def test_the_default_reference_holds_returns_far_beyond_a_small_grid():
+    # A SICK-class scanner in an open hall: a near wall and the far wall 60 m ahead, which
+    # pins the heading best. The default grid (2,048 cells at 5 cm: 102 m) keeps the far
+    # wall's surface; a grid of 1,024 (51 m, centred on the sensor) would leave it out.
+    near = np.c_[np.linspace(1.0, 20.0, 200), np.full(200, -3.0)]
+    far = np.c_[np.full(200, 60.0), np.linspace(-10.0, 10.0, 200)]
+    ref = PointScan.from_points(np.concatenate([near, far]))
+    for cells, kept in ((MatcherConfig().grid_cells, True), (1024, False)):
+        m = ScanMatcher(MatcherConfig(grid_cells=cells), seed=0)
+        reference = m.build_reference(ref)
+        cost = field_lookup(reference.field, reference.meta, 60.0, 2.0)
+        assert (cost < 0.01 * reference.meta[R2]) == kept, cells
+        assert field_lookup(reference.field, reference.meta, 10.0, -3.0) < 0.01
