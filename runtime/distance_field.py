@@ -42,6 +42,9 @@ from numba import njit
 # Layout of the ``meta`` array describing the used part of a grid.
 OX, OY, INV_RES, NX, NY, R2, RES = 0, 1, 2, 3, 4, 5, 6  # R2: cost beyond the radius
 N_META = 7
+# A build records, for each band of this many rows, the columns its segments reached: a
+# band rather than a row, so that the record costs a segment two updates, not one a row.
+SPAN_ROWS = 16
 
 
 @njit(cache=True)
@@ -128,10 +131,10 @@ def build_distance_field(pts, n, res, radius, max_gap, inv_c2, field, meta, colu
     so the minimum over surfaces can be taken on either; baking the kernel in here costs one
     pass at build time instead of a logarithm per point per candidate pose. ``columns``
     (at least a row of ``field`` long) is scratch for the nodes' x (:func:`column_centres`),
-    ``spans`` (an integer pair for each row of ``field``) for the columns each row's
-    segments reached: only those take the kernel, the rest of a row is one constant (a wide
-    window is mostly far from every surface; the kernel's pass over all of it cost more than
-    the segments' own, docs/experiments/2026-11-28-far-returns.md).
+    ``spans`` (an integer pair for each band of ``SPAN_ROWS`` rows of ``field``) for the
+    columns each band's segments reached: only those take the kernel, the rest of a row is
+    one constant (a wide window is mostly far from every surface; the kernel's pass over all
+    of it cost more than the segments' own, docs/experiments/2026-11-28-far-returns.md).
     """
     fit_window(pts, n, res, radius, field.shape[1], field.shape[0], meta)
     r2 = radius * radius
@@ -146,24 +149,24 @@ def build_distance_field(pts, n, res, radius, max_gap, inv_c2, field, meta, colu
     gap2 = max_gap * max_gap
     cos_bend = math.cos(bend)
     column_centres(ox, res, nx, columns)
-    for i in range(ny):
-        spans[i, 0] = nx
-        spans[i, 1] = -1
+    for g in range((ny + SPAN_ROWS - 1) // SPAN_ROWS):
+        spans[g, 0] = nx
+        spans[g, 1] = -1
     for p in range(n):
         b = surface_end(pts, p, n, gap2, bend, cos_bend, gap_ratio)
         ax, ay, bx, by = pts[p, 0], pts[p, 1], pts[b, 0], pts[b, 1]
-        splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field, columns)
-        i0, i1, j0, j1 = segment_box(ax, ay, bx, by, ox, oy, res, radius, nx, ny)
-        if j1 >= j0:
-            for i in range(i0, i1 + 1):
-                spans[i, 0] = min(spans[i, 0], j0)
-                spans[i, 1] = max(spans[i, 1], j1)
+        i0, i1, j0, j1 = splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field,
+                                       columns)
+        if j1 >= j0 and i1 >= i0:
+            for g in range(i0 // SPAN_ROWS, i1 // SPAN_ROWS + 1):
+                spans[g, 0] = min(spans[g, 0], j0)
+                spans[g, 1] = max(spans[g, 1], j1)
     if inv_c2 > 0.0:
         far = math.log1p(r2 * inv_c2)
         meta[R2] = far
         for i in range(ny):
-            lo = spans[i, 0]
-            hi = spans[i, 1]
+            lo = spans[i // SPAN_ROWS, 0]
+            hi = spans[i // SPAN_ROWS, 1]
             for j in range(min(lo, nx)):
                 field[i, j] = far
             for j in range(lo, hi + 1):
@@ -209,13 +212,13 @@ def splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field, columns):
     from ``columns``, not computed from its index: on a CPU without AVX-512 (Zen 3) the
     index's conversion to a double runs lane by lane, a third of a build
     (docs/experiments/2026-11-27-field-speed.md). The arithmetic is the same, operation for
-    operation, so the field is too."""
+    operation, so the field is too. Returns the box of nodes walked (:func:`segment_box`)."""
     ux = bx - ax
     uy = by - ay
     uu = ux * ux + uy * uy
     i0, i1, j0, j1 = segment_box(ax, ay, bx, by, ox, oy, res, radius, nx, ny)
     if j1 < j0:
-        return
+        return i0, i1, j0, j1
     m = j1 - j0 + 1
     xs = columns[j0 : j1 + 1]
     for i in range(i0, i1 + 1):
@@ -237,6 +240,7 @@ def splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field, columns):
                 dx = ax - xs[k]
                 d2 = dx * dx + dy * dy
                 row[k] = np.fmin(d2, row[k])
+    return i0, i1, j0, j1
 
 
 @njit(cache=True, inline="always")

@@ -20,7 +20,8 @@ import numpy as np
 from numba import njit
 
 from swarmslam.runtime.config import MatcherConfig
-from swarmslam.runtime.distance_field import (N_META, N_SURFACE, build_distance_field,
+from swarmslam.runtime.distance_field import (N_META, N_SURFACE, SPAN_ROWS,
+                                               build_distance_field,
                                                list_surfaces)
 from swarmslam.runtime.local_map import build_local_map, robot_square
 from swarmslam.runtime.objectives import (
@@ -80,8 +81,8 @@ class ReferenceMaps:
         # scratch of the builds: the nodes' x (distance_field.column_centres), each row's span
         self.columns = np.zeros(cells)
         self.coarse_columns = np.zeros(coarse_cells)
-        self.spans = np.zeros((cells, 2), dtype=np.int64)
-        self.coarse_spans = np.zeros((coarse_cells, 2), dtype=np.int64)
+        self.spans = np.zeros((-(-cells // SPAN_ROWS), 2), dtype=np.int64)
+        self.coarse_spans = np.zeros((-(-coarse_cells // SPAN_ROWS), 2), dtype=np.int64)
         self.coarse_meta = np.zeros(N_META, dtype=np.float64)
         self.grid = np.zeros((grid_cells, grid_cells), dtype=np.uint8)
         self.meta = np.zeros(N_META, dtype=np.float64)
