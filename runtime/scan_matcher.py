@@ -78,7 +78,7 @@ class ReferenceMaps:
         grid_cells = cells if grid_cells is None else grid_cells
         self.field = np.zeros((cells, cells), dtype=np.float32)
         self.coarse_field = np.zeros((coarse_cells, coarse_cells), dtype=np.float32)
-        # scratch of the builds: the nodes' x (distance_field.column_centres), each row's span
+        # scratch of the builds: the nodes' x (distance_field.column_centres), each band's span
         self.columns = np.zeros(cells)
         self.coarse_columns = np.zeros(coarse_cells)
         self.spans = np.zeros((-(-cells // SPAN_ROWS), 2), dtype=np.int64)

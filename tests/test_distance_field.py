@@ -142,8 +142,8 @@ def test_cauchy_kernel_baked_into_field():
 
 
 def test_every_node_of_a_wide_window_takes_the_kernel_of_its_plain_distance():
-    # The kernel is taken only over the columns each row's segments reached, the rest of a
-    # row set to the constant: every node must still hold exactly log1p(d²/c²), or the
+    # The kernel is taken only over the columns each band of rows' segments reached, the
+    # rest of a row set to the constant: every node must still hold exactly log1p(d²/c²), or the
     # constant beyond the radius, whether its row was reached or not.
     rng = np.random.default_rng(7)
     wall = np.c_[np.linspace(-3.0, 3.0, 40), np.full(40, 2.0)]
