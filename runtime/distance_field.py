@@ -149,25 +149,27 @@ def build_distance_field(pts, n, res, radius, max_gap, inv_c2, field, meta, colu
     gap2 = max_gap * max_gap
     cos_bend = math.cos(bend)
     column_centres(ox, res, nx, columns)
-    for g in range((ny + SPAN_ROWS - 1) // SPAN_ROWS):
-        spans[g, 0] = nx
-        spans[g, 1] = -1
+    record = inv_c2 > 0.0  # the spans serve the kernel's pass alone
+    if record:
+        for g in range((ny + SPAN_ROWS - 1) // SPAN_ROWS):
+            spans[g, 0] = nx
+            spans[g, 1] = -1
     for p in range(n):
         b = surface_end(pts, p, n, gap2, bend, cos_bend, gap_ratio)
         ax, ay, bx, by = pts[p, 0], pts[p, 1], pts[b, 0], pts[b, 1]
         i0, i1, j0, j1 = splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field,
                                        columns)
-        if j1 >= j0 and i1 >= i0:
+        if record and j1 >= j0 and i1 >= i0:
             for g in range(i0 // SPAN_ROWS, i1 // SPAN_ROWS + 1):
                 spans[g, 0] = min(spans[g, 0], j0)
                 spans[g, 1] = max(spans[g, 1], j1)
-    if inv_c2 > 0.0:
+    if record:
         far = math.log1p(r2 * inv_c2)
         meta[R2] = far
         for i in range(ny):
             lo = spans[i // SPAN_ROWS, 0]
             hi = spans[i // SPAN_ROWS, 1]
-            for j in range(min(lo, nx)):
+            for j in range(lo):  # (lo is nx in a band no segment reached)
                 field[i, j] = far
             for j in range(lo, hi + 1):
                 v = field[i, j]
