@@ -337,13 +337,12 @@ class FrontEndConfig(Section):
         "apart", gt=0)
     odometry_heading_weight: float = _setting(
         5.0, "λ per (turn / σ)²: a match turning odometry's prediction (a new reading) by more "
-        "than odometry_heading_sigma is weighed against the optimum the compass search "
-        "settles in from the prediction, each by its λ plus this times (its turn from the "
-        "prediction / σ)²; of two valleys the scans fit alike, the nearer one stands "
-        "(docs/method.md §6.1); 0: off", ge=0)
+        "than σ is weighed against the optimum the compass search settles in from the "
+        "prediction, each by its λ plus this times (its turn from the prediction / σ)²; of "
+        "two valleys the scans fit alike, the nearer one stands (docs/method.md §6.1); 0: off",
+        ge=0)
     odometry_heading_sigma: float = _setting(
-        math.radians(1.0), "rad: a match turning odometry's prediction by more is weighed "
-        "(odometry_heading_weight); σ of odometry's heading over a step is this plus "
+        math.radians(1.0), "rad, σ of odometry's heading over a step, plus "
         "odometry_gate_share's heading share of its turn", gt=0)
     previous_scan_gain: float = _setting(
         0.1, "a match is lost when odometry's prediction (a new reading) fits the previous scan "

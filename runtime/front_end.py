@@ -409,20 +409,18 @@ class FrontEnd:
 
     def _nearer_odometry(self, scan, match, guess, step):
         """Of two optima of the scan cost, the one nearer odometry's heading: a ``match``
-        turning the prediction ``guess`` (a new reading) by more than
-        ``odometry_heading_sigma`` is weighed against the optimum the compass search settles
-        in from the prediction, each by its λ plus ``odometry_heading_weight``·(its turn from
-        the prediction / σ)², σ being ``odometry_heading_sigma`` plus
-        ``odometry_gate_share``'s heading share of the turn ``step`` predicted (odometry's
-        heading is trusted less in a turn, but a turn's match is still weighed). A submap
-        holding a wall twice fits a scan at either copy about equally; odometry, which saw no
-        such turn, tells them apart (fr-clinic's halls: ±2–5° a scan where odometry drove
-        straight; docs/method.md §6.1). A match that fits clearly better, odometry's lag in a
-        fast turn, outweighs the prior."""
+        turning the prediction ``guess`` (a new reading) by more than σ
+        (``odometry_heading_sigma`` plus ``odometry_gate_share``'s heading share of the turn
+        ``step`` predicted) is weighed against the optimum the compass search settles in from
+        the prediction, each by its λ plus ``odometry_heading_weight``·(its turn from the
+        prediction / σ)². A submap holding a wall twice fits a scan at either copy about
+        equally; odometry, which saw no such turn, tells them apart (fr-clinic's halls: ±2–5°
+        a scan where odometry drove straight; docs/method.md §6.1). A match that fits clearly
+        better, odometry's lag in a fast turn, outweighs the prior."""
         c = self.config.front_end
         turn = float(wrap_angle(match.pose[2] - guess[2]))
         sigma = c.odometry_heading_sigma + c.odometry_gate_share[1] * abs(float(step[2]))
-        if c.odometry_heading_weight <= 0 or abs(turn) <= c.odometry_heading_sigma:
+        if c.odometry_heading_weight <= 0 or abs(turn) <= sigma:
             return match.pose
         settled = self.matcher.settle(scan, self.reference, self._at_prediction(guess))
         held = float(wrap_angle(settled.pose[2] - guess[2]))
