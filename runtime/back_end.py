@@ -38,7 +38,7 @@ from swarmslam.runtime.node_scans import NodeScans
 from swarmslam.runtime.pose import between, compose, wrap_angle
 from swarmslam.runtime.pose_graph import LOOP, PoseGraph
 from swarmslam.runtime.scan import PointScan
-from swarmslam.runtime.scan_matcher import ScanMatcher
+from swarmslam.runtime.scan_matcher import ScanMatcher, beyond_margin
 from swarmslam.runtime.sparse_ldl import FactorCapacityError
 from swarmslam.runtime.wide_loop_search import WideLoopSearch
 
@@ -318,17 +318,19 @@ class BackEnd:
             n_members = self.wide.members(self.graph.poses, node, candidate, guess, members)
         submap = self.nodes.place(self.graph.poses, members[:n_members], candidate,
                                   self._submap)
-        reference = self.matcher.build_reference(submap, self.reference)
         scan = self.nodes.load(node, self._scan)
         if not proposal:
             guess = relative_guess(self.graph, candidate, node)
         if window is None:
             window = self.loops.window(self.graph, self.nodes.cov, candidate, node,
                                        self._window)
-        pose = self.matcher.align_scans(scan, reference, guess, window).pose
-        if self._at_edge(pose, guess, window):  # the optimum lies at or beyond the box
+        # the fine field only for a global stage that ended inside the box
+        match = self.matcher.align_inside(scan, submap, self.reference, guess, window,
+                                          c.window_margin)
+        if match is None or self._at_edge(match.pose, guess, window):  # at or beyond the box
             loops.rejected_match += 1
             return None
+        pose, reference = match.pose, self.reference
         self.z_info[:] = self.information(loop=True)
         ratio = self.config.front_end.degeneracy_ratio
         if ratio > 0:  # along a corridor the guess stands in, the edge weak there
@@ -365,8 +367,7 @@ class BackEnd:
 
     def _at_edge(self, pose, centre, window) -> bool:
         """The match ended within ``window_margin`` of its box's edge."""
-        margin = 1.0 - self.loops.config.window_margin
-        return bool(np.any(np.abs(pose - centre) >= margin * window))
+        return beyond_margin(pose, centre, window, self.loops.config.window_margin)
 
     def close_loop(self, candidate: int, node: int, z) -> bool:
         """Step 3b now: add the loop edge, re-optimise (Eq. 21), and keep the edge only if the

@@ -251,7 +251,6 @@ def align_kernel(
     out[:] = 0.0
     out[R_LAMBDA] = np.inf
     kernel = int(settings[S_KERNEL])
-    budget = settings[S_MAX_EVALS]
     # 0. A prediction trusted (``S_PREDICT``: the λ a match must reach, else 0): the local stage
     # first, at the box's centre — the guess; a match that fits as well as matches here
     # usually do stands, and the global stage is skipped (docs/method.md §3).
@@ -268,16 +267,34 @@ def align_kernel(
             _polish(settings, field, meta, pts, n, box, out)
             out[R_LAMBDA_SCAN] = out[R_LAMBDA]
             return
-    # 1. Scan-to-scan over the whole box (Eq. 14), on a stride of the points and, if set up,
-    # on the coarse wide field whose broad basin the swarm finds more reliably ...
+    global_stage(kind, ws, pts, n, field, grid, meta, coarse, coarse_meta, settings, box)
+    local_stages(kind, ws, pts, n, field, grid, meta, settings, box, threshold, out)
+
+
+@njit(cache=True)
+def global_stage(kind, ws, pts, n, field, grid, meta, coarse, coarse_meta, settings, box):
+    """Alg. 5's first stage: scan-to-scan over the whole box (Eq. 14), on a stride of the
+    points and, if set up, on the coarse wide field whose broad basin the swarm finds more
+    reliably (then ``field`` is not read). The swarm's best is left in ``ws.best``."""
     stride = _stride(n, settings[S_STRIDE], settings[S_GLOBAL_POINTS])
     _set_box(ws, box[0], box[1])
     if settings[S_COARSE] != 0.0:
-        _minimise(kind, ws, settings, 0, 0, pts, n, stride, coarse, grid, coarse_meta, budget)
+        _minimise(kind, ws, settings, 0, 0, pts, n, stride, coarse, grid, coarse_meta,
+                  settings[S_MAX_EVALS])
     else:
-        _minimise(kind, ws, settings, 0, kernel, pts, n, stride, field, grid, meta, budget)
+        _minimise(kind, ws, settings, 0, int(settings[S_KERNEL]), pts, n, stride, field, grid,
+                  meta, settings[S_MAX_EVALS])
+
+
+@njit(cache=True)
+def local_stages(kind, ws, pts, n, field, grid, meta, settings, box, threshold, out):
+    """Alg. 5 after :func:`global_stage`, on the fine field: its best judged by λ, refined,
+    polished, and above ``threshold`` the scan-to-map fallback; ``out`` as
+    :func:`align_kernel` fills it."""
+    kernel = int(settings[S_KERNEL])
+    budget = settings[S_MAX_EVALS]
     _take(ws, out, _lambda(settings, field, meta, pts, n, ws.best[0], ws.best[1], ws.best[2]))
-    # ... then polished by the same swarm on all points in a small box around the result.
+    # Refined by the same swarm on all points in a small box around it, then polished.
     if settings[S_REFINE_EVALS] > 0:
         for d in range(3):
             w = settings[S_REFINE_X + d]
@@ -302,6 +319,12 @@ def align_kernel(
         lam = _lambda(settings, field, meta, pts, n, ws.best[0], ws.best[1], ws.best[2])
         if _take(ws, out, lam):
             out[R_USED_MAP] = 1.0
+
+
+def beyond_margin(pose, centre, window, margin: float) -> bool:
+    """``pose`` lies within ``margin`` (a share of the half-widths) of the edge of the box
+    ``centre`` ± ``window``, or beyond it: the optimum lies at or beyond the box."""
+    return bool(np.any(np.abs(np.asarray(pose) - centre) >= (1.0 - margin) * np.asarray(window)))
 
 
 class ScanMatcher:
@@ -402,21 +425,7 @@ class ScanMatcher:
         ref = self._default_reference if out is None else out
         c = self.config
         self.build_field(scan, ref)
-        if c.coarse_resolution > 0:
-            build_distance_field(
-                scan.buffer,
-                scan.count,
-                c.coarse_resolution,
-                c.coarse_radius,
-                c.max_gap,
-                0.0,
-                ref.coarse_field,
-                ref.coarse_meta,
-                ref.coarse_columns,
-                ref.coarse_spans,
-                c.surface_bend,
-                c.surface_gap_ratio,
-            )
+        self.build_coarse(scan, ref)
         if c.scan_to_map:
             build_local_map(
                 scan.buffer, scan.count, ref.field, ref.meta, self._inv_c2(), c.occupied_radius,
@@ -433,6 +442,16 @@ class ScanMatcher:
         build_distance_field(scan.buffer, scan.count, c.resolution, c.field_radius, c.max_gap,
                              self._inv_c2(), out.field, out.meta, out.columns,
                              out.spans, c.surface_bend, c.surface_gap_ratio)
+
+    def build_coarse(self, scan: PointScan, out: ReferenceMaps) -> None:
+        """Render ``scan``'s coarse field (the global stage's, plain ``d²``) alone into
+        ``out``; nothing without ``coarse_resolution``."""
+        c = self.config
+        if c.coarse_resolution > 0:
+            build_distance_field(scan.buffer, scan.count, c.coarse_resolution, c.coarse_radius,
+                                 c.max_gap, 0.0, out.coarse_field, out.coarse_meta,
+                                 out.coarse_columns, out.coarse_spans, c.surface_bend,
+                                 c.surface_gap_ratio)
 
     def _inv_c2(self) -> float:
         """The fine field's Cauchy kernel, ``1/c²`` (0: the field holds plain ``d²``)."""
@@ -489,6 +508,10 @@ class ScanMatcher:
         overrides the half-widths of the box around ``guess``."""
         out = self._out
         self.align_into(scan, reference, guess, out, window)
+        return self._result(out)
+
+    @staticmethod
+    def _result(out) -> MatchResult:
         return MatchResult(
             pose=out[R_X : R_T + 1].copy(),
             error=float(out[R_LAMBDA]),
@@ -497,6 +520,40 @@ class ScanMatcher:
             iterations=int(out[R_ITERATIONS]),
             evaluations=int(out[R_EVALUATIONS]),
         )
+
+    def align_inside(self, scan: PointScan, reference_scan: PointScan, out: ReferenceMaps,
+                     guess, window, margin: float) -> MatchResult | None:
+        """Alg. 5 on ``reference_scan``, its fields rendered into ``out`` as they are needed: the
+        coarse field and the global stage on it; then, only when the swarm's best lies inside
+        the box of ``guess`` ± ``window`` (off its edge by ``margin`` of the half-widths, as
+        :func:`beyond_margin` tells), the fine field and the local stages, the match as
+        :meth:`align_scans` gives it. None at the edge, where the optimum lies at or beyond the
+        box: the fine field, a loop attempt's costliest part, is not built for it
+        (docs/method.md §5, step 3). Without a coarse field, the whole of Alg. 5 runs."""
+        if scan.count == 0:
+            raise ValueError("current scan is empty")
+        if reference_scan.count == 0:
+            raise ValueError("reference scan is empty")
+        if self.config.coarse_resolution <= 0 or self.config.scan_to_map:
+            reference = self.build_reference(reference_scan, out)
+            return self.align_scans(scan, reference, guess, window)
+        out.ready = False
+        self.build_coarse(reference_scan, out)
+        self.set_search_box(guess, window)
+        ws = self.optimizer.ws
+        global_stage(self.optimizer.kind, ws, scan.buffer, scan.count, out.field, out.grid,
+                     out.meta, out.coarse_field, out.coarse_meta, self.settings, self._box)
+        if beyond_margin(ws.best, guess, window, margin):
+            return None
+        self.build_field(reference_scan, out)
+        out.ready = True
+        res = self._out
+        res[:] = 0.0
+        res[R_LAMBDA] = np.inf
+        local_stages(self.optimizer.kind, ws, scan.buffer, scan.count, out.field, out.grid,
+                     out.meta, self.settings, self._box, self.threshold.rejection_threshold, res)
+        self.threshold.update(res[R_LAMBDA])
+        return self._result(res)
 
     def settle(self, scan: PointScan, reference: ReferenceMaps, match: MatchResult
                ) -> MatchResult:

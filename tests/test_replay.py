@@ -14,14 +14,15 @@ from swarmslam.runtime.config import SlamConfig, override
 PROBE = """
 import json, sys
 from swarmslam.replay import replay_run
-from swarmslam.runtime.scan_matcher import align_kernel
+from swarmslam.runtime.scan_matcher import align_kernel, global_stage, local_stages
 from swarmslam.runtime.sparse_ldl import ldl_factor
 from swarmslam.runtime.wide_loop_search import nodes_within
 seen = {}
 def before_scan(k, runtime):
     if k == 0:  # the clock has started; nothing of the log has been processed yet
         seen.update(matcher=len(align_kernel.signatures), solver=len(ldl_factor.signatures),
-                    wide=len(nodes_within.signatures))
+                    wide=len(nodes_within.signatures), loop=len(global_stage.signatures),
+                    loop_local=len(local_stages.signatures))
 metrics, _ = replay_run(sys.argv[1], limit=30, before_scan=before_scan)
 print(json.dumps({"seen": seen, "warm_up_seconds": metrics.get("warm_up_seconds", 0.0)}))
 """

@@ -235,3 +235,32 @@ def test_the_default_reference_holds_returns_far_beyond_a_small_grid():
         cost = field_lookup(reference.field, reference.meta, 60.0, 2.0)
         assert (cost < 0.01 * reference.meta[R2]) == kept, cells
         assert field_lookup(reference.field, reference.meta, 10.0, -3.0) < 0.01
+
+
+def test_align_inside_is_the_match_or_none_at_the_box_edge_without_the_fine_field(monkeypatch):
+    """A loop attempt's alignment (``align_inside``) renders the fine field only after a global
+    stage that ended inside the box: there its match is :meth:`align_scans`' to the bit (the
+    same seed, the same swarm); a box that ends short of the true motion leaves the global
+    stage's best at its edge, and the answer is None with no fine field built."""
+    motion = np.array([0.8, -0.4, 0.3])
+    ref, cur = scans_for(motion, 0.01)
+    window = np.array([0.3, 0.3, 0.2])
+    whole = ScanMatcher(MatcherConfig(), seed=3)
+    expected = whole.align_scans(cur, whole.build_reference(ref), motion + 0.05, window)
+    split = ScanMatcher(MatcherConfig(), seed=3)
+    out = split.new_reference()
+    got = split.align_inside(cur, ref, out, motion + 0.05, window, 0.05)
+    assert got.pose.tobytes() == expected.pose.tobytes() and got.error == expected.error
+    assert out.ready
+
+    fine_builds = []
+    build_field = ScanMatcher.build_field
+    monkeypatch.setattr(ScanMatcher, "build_field",
+                        lambda self, scan, o: (fine_builds.append(1), build_field(self, scan, o)))
+    short = ScanMatcher(MatcherConfig(), seed=3)
+    out = short.new_reference()
+    # the box around a guess 0.4 m short along x ends 0.1 m before the true motion
+    assert short.align_inside(cur, ref, out, motion - [0.4, 0.0, 0.0], window, 0.05) is None
+    assert fine_builds == [] and not out.ready
+    assert short.align_inside(cur, ref, out, motion, window, 0.05) is not None
+    assert fine_builds == [1]
