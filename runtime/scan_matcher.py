@@ -529,7 +529,8 @@ class ScanMatcher:
         :func:`beyond_margin` tells), the fine field and the local stages, the match as
         :meth:`align_scans` gives it. None at the edge, where the optimum lies at or beyond the
         box: the fine field, a loop attempt's costliest part, is not built for it
-        (docs/method.md §5, step 3). Without a coarse field, the whole of Alg. 5 runs."""
+        (docs/method.md §5, step 3). Without a coarse field, or with the scan-to-map fallback
+        (whose grid is drawn from the fine field), Alg. 5 runs whole and is never None."""
         if scan.count == 0:
             raise ValueError("current scan is empty")
         if reference_scan.count == 0:
