@@ -20,6 +20,7 @@ from swarmslam.runtime.slam import GraphSlam
 from swarmslam.bench.generalization import (
     CASES,
     TruthOracle,
+    loop_correct,
     loop_scores,
     parse_case,
     rigid_ate,
@@ -193,6 +194,21 @@ def test_loop_scores_count_a_closure_correct_only_near_the_truth():
     assert s["loops_accepted"] == 2 and s["loops_correct"] == 1
     assert s["loop_precision"] == 0.5
     assert s["revisit_nodes"] == 1 and s["loop_recall"] == 1.0
+    assert s["loops_weak"] == 0 and s["loop_precision_all_axes"] == 0.5
+
+
+def test_a_loop_edge_is_judged_along_its_weak_axis_by_its_own_sigma_there():
+    base = np.diag([400.0, 400.0, 2500.0])
+    corridor = Degeneracy(np.diag([1e-3, 1.0, 1.0]), 0.12)  # x is the corridor's axis
+    weak = corridor.information(base, 0.01)
+    assert loop_correct((0.6, 0.01, 0.0), weak) == (True, True)  # 0.6 m where σ is 10x
+    assert loop_correct((2.1, 0.0, 0.0), weak) == (False, True)  # beyond 0.2 m / 0.1
+    assert loop_correct((0.05, 0.25, 0.0), weak) == (False, True)  # across the axis: 0.2 m
+    assert loop_correct((0.6, 0.0, math.radians(2.5)), weak) == (False, True)  # heading
+    barely = corridor.information(base, 0.87)  # the kind that pinned a drift: still wrong
+    assert loop_correct((0.22, 0.0, 0.0), barely) == (False, True)
+    assert loop_correct((0.6, 0.0, 0.0), base) == (False, False)  # full information: 0.2 m
+    assert loop_correct((0.15, 0.1, 0.01), base) == (True, False)
 
 
 def test_rigid_ate_ignores_a_rigid_motion_and_measures_the_rest():

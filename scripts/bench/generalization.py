@@ -6,8 +6,9 @@ is replayed exactly as a user replays a log (``swarmslam replay LOG --relations 
 case: the Kümmerle errors ``eT``/``eR_deg`` over the sampled relations; ``ate_rmse_m`` (every
 scan's position after the rigid fit of the whole trajectory onto the truth); the accepted loop
 closures, their ``loop_precision`` (a closure is correct if its transform is within 0.2 m and
-2° of the truth) and ``loop_recall`` (of the nodes that truly revisit an earlier place, the
-share tied to it by a correct closure); the real-time factor; and the **floor**: the same case
+2° of the truth, judged along the directions the edge measures: see ``loop_correct``) and
+``loop_recall`` (of the nodes that truly revisit an earlier place, the share tied to it by a
+correct closure); the real-time factor; and the **floor**: the same case
 with every alignment started at the true relative pose and trusted (the swarm never misses the
 right basin; the objective, the noise and the graph do the rest) — what better global search
 could reach.
@@ -90,16 +91,38 @@ def rigid_ate(estimated, truth) -> float:
     return float(np.sqrt(np.mean(np.sum((pc @ r.T - qc) ** 2, axis=1))))
 
 
+def loop_correct(err, info) -> tuple[bool, bool]:
+    """Whether a loop edge whose measurement is ``err`` (x, y, yaw) off the truth is correct,
+    and whether it was built weak along a direction. Its heading within 2°; its position
+    within 0.2 m once each direction of the error is scaled by the edge's own σ there against
+    its σ along its strongest: an edge kept at a share s of its information along a corridor's
+    axis holds the graph's estimate there, not a measurement (docs/method.md §5, step 3), and
+    is judged there within 0.2 m / √s. An edge of full information everywhere is judged as
+    the plain 0.2 m."""
+    values, vectors = np.linalg.eigh(np.asarray(info, float)[:2, :2])
+    share = np.clip(values / values[1], 0.0, 1.0) if values[1] > 0 else np.ones(2)
+    scaled = np.sqrt(share) * (vectors.T @ np.asarray(err, float)[:2])
+    weak = bool(share[0] < 1.0 - 1e-9)
+    return (bool(math.hypot(*scaled) <= CORRECT_LOOP[0] and abs(err[2]) <= CORRECT_LOOP[1]),
+            weak)
+
+
 def loop_scores(graph, node_truth, config: SlamConfig, stamps) -> dict:
-    """Precision of the kept loop closures and recall over the nodes that truly revisit."""
+    """Precision of the kept loop closures and recall over the nodes that truly revisit;
+    ``loops_weak`` counts the closures weak along a direction, ``loop_precision_all_axes``
+    judges every closure on its whole position error (0.2 m), weak direction or not."""
     n, e = graph.n_nodes, graph.n_edges
     loops = np.nonzero(graph.kind[:e] == LOOP)[0]
     correct_nodes = set()
-    correct = 0
+    correct = weak = all_axes = 0
     for k in loops:
         i, j = graph.ij[k]
         err = between(graph.z[k], between(node_truth[j], node_truth[i]))
-        if math.hypot(err[0], err[1]) <= CORRECT_LOOP[0] and abs(err[2]) <= CORRECT_LOOP[1]:
+        right, thin = loop_correct(err, graph.info[k])
+        weak += thin
+        all_axes += (math.hypot(err[0], err[1]) <= CORRECT_LOOP[0]
+                     and abs(err[2]) <= CORRECT_LOOP[1])
+        if right:
             correct += 1
             correct_nodes.add(int(j))
     radius, heading, gap = REVISIT
@@ -116,6 +139,8 @@ def loop_scores(graph, node_truth, config: SlamConfig, stamps) -> dict:
     hit = sum(1 for j in revisits if j in correct_nodes)
     return {"loops_accepted": int(len(loops)), "loops_correct": int(correct),
             "loop_precision": correct / len(loops) if len(loops) else 1.0,
+            "loops_weak": int(weak),
+            "loop_precision_all_axes": all_axes / len(loops) if len(loops) else 1.0,
             "revisit_nodes": len(revisits),
             "loop_recall": hit / len(revisits) if revisits else 1.0}
 
