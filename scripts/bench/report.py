@@ -150,7 +150,7 @@ def generalization(data: dict) -> Section:
                  "truth, its position judged along the directions the edge measures (along a "
                  "corridor's axis an edge keeps 1% of its information and holds the graph's "
                  "estimate: within 0.2 m / √0.01 there); \"on every axis\" judges the whole "
-                 "position error (docs/method.md §7).")
+                 "position error (docs/method.md §7.2).")
     return Section("generalization", "Logs it was never tuned on (simulated)",
                    "swarmslam bench generalization", data.get("meta", {}), table)
 
