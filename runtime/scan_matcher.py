@@ -529,13 +529,15 @@ class ScanMatcher:
         :func:`beyond_margin` tells), the fine field and the local stages, the match as
         :meth:`align_scans` gives it. None at the edge, where the optimum lies at or beyond the
         box: the fine field, a loop attempt's costliest part, is not built for it
-        (docs/method.md §5, step 3). Without a coarse field, or with the scan-to-map fallback
-        (whose grid is drawn from the fine field), Alg. 5 runs whole and is never None."""
+        (docs/method.md §5, step 3). Without a coarse field, with the scan-to-map fallback
+        (whose grid is drawn from the fine field), or with ``predict_first`` (whose local stage
+        at the guess comes before the global one), Alg. 5 runs whole and is never None."""
         if scan.count == 0:
             raise ValueError("current scan is empty")
         if reference_scan.count == 0:
             raise ValueError("reference scan is empty")
-        if self.config.coarse_resolution <= 0 or self.config.scan_to_map:
+        c = self.config
+        if c.coarse_resolution <= 0 or c.scan_to_map or c.predict_first > 0:
             reference = self.build_reference(reference_scan, out)
             return self.align_scans(scan, reference, guess, window)
         out.ready = False

@@ -264,3 +264,9 @@ def test_align_inside_is_the_match_or_none_at_the_box_edge_without_the_fine_fiel
     assert fine_builds == [] and not out.ready
     assert short.align_inside(cur, ref, out, motion, window, 0.05) is not None
     assert fine_builds == [1]
+    # a trusted prediction's local stage comes first: Alg. 5 runs whole, never None
+    trusting = ScanMatcher(MatcherConfig(predict_first=1.5), seed=3)
+    out = trusting.new_reference()
+    short_guess = motion - [0.4, 0.0, 0.0]
+    assert trusting.align_inside(cur, ref, out, short_guess, window, 0.05) is not None
+    assert fine_builds == [1, 1] and out.ready
