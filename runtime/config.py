@@ -382,6 +382,20 @@ class FrontEndConfig(Section):
     spread_corrections: bool = _setting(
         True, "a scan between two nodes takes the graph's correction of both, shared by time "
         "(false: its tracking node's alone)")
+    smooth_between_headings: bool = _setting(
+        True, "the trajectory's scans between nodes take odometry's turns into their headings, "
+        "weighed by the noise the run's own record shows of each (docs/method.md §6.2, "
+        "\"Between-scan headings\"); the map and the nodes are as matched")
+    between_significance: float = _setting(
+        2.0, "standard errors by which the between-scan matches' estimated heading noise must "
+        "exceed 0 before odometry's turns are taken in (and its lower bound is what is "
+        "used)", ge=0)
+    between_gate: float = _setting(
+        4.0, "σ: an odometry turn between two scans that disagrees with their matches by more "
+        "is not taken in (a slipping wheel, a stamp out of step in a turn)", gt=0)
+    between_min_pairs: int = _setting(
+        30, "pairs of scans each kind of pair needs before the noise is estimated from it",
+        ge=3)
 
 
 @dataclass(frozen=True)
@@ -925,6 +939,7 @@ EXPERT_FIELDS = frozenset({
     "front_end.odometry_gate_explained", "front_end.odometry_gate_distance",
     "front_end.odometry_heading_weight", "front_end.odometry_heading_sigma",
     "front_end.previous_scan_gain", "front_end.previous_scan_fit",
+    "front_end.between_significance", "front_end.between_gate", "front_end.between_min_pairs",
     "loop_closure.agreement_nodes", "loop_closure.agreement_distance",
     "loop_closure.agreement_angle",
     "matcher.surface_bend", "matcher.surface_gap_ratio", "matcher.coarse_radius",

@@ -19,6 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from swarmslam.runtime.between_headings import (FIRST_READING, NEW_READING, NO_READING,
+                                                STALE_READING, BetweenSmoothing,
+                                                smooth_between)
 from swarmslam.runtime.config import FrontEndConfig, SlamConfig
 from swarmslam.runtime.degeneracy import Degeneracy
 from swarmslam.runtime.loop_closure import propagate_covariance
@@ -121,6 +124,11 @@ class FrontEnd:
         self.scan_node = np.zeros(n, np.int64)
         self.scan_rel = np.zeros((n, 3))
         self.scan_stamp = np.zeros(n)
+        # and what odometry read at it (its kind, and its heading for a new one): the scans
+        # between nodes are smoothed with its turns (swarmslam.runtime.between_headings)
+        self.scan_reading = np.zeros(n, np.int8)
+        self.scan_odometry_heading = np.zeros(n)
+        self._reading, self._reading_heading = NO_READING, 0.0  # the scan being tracked's
         self.n_scans = 0
         self.keyframe = -1
         self.rel = np.zeros(3)  # the current pose in the keyframe's frame
@@ -145,6 +153,7 @@ class FrontEnd:
         self._previous_listed = False
         self.disowned_matches = 0  # matches the previous scan called lost
         self.held_to_odometry = 0  # matches that gave way to the optimum nearer odometry
+        self.heading_noise = None  # the trajectory's last estimate (between_headings.HeadingNoise)
         self.status = "ok"
         self.evaluations = 0  # by the last match (what a viewer plots)
 
@@ -263,22 +272,42 @@ class FrontEnd:
         """Timestamps and optimised poses of every scan recorded (docs/method.md §6.2)."""
         n = self.n_scans
         node, rel, stamp = self.scan_node[:n], self.scan_rel[:n], self.scan_stamp[:n]
-        poses = compose(self.graph.poses[node], rel)
-        if self.config.front_end.spread_corrections:
-            poses = self._spread_corrections(node, rel, stamp, poses)
+        step = self._node_steps()
+        poses = self._place(node, rel, stamp, step)
+        c = self.config.front_end
+        if c.smooth_between_headings and n:
+            is_node = np.r_[True, node[1:] != node[:-1]]  # a node's first scan is its own
+            smoothing = BetweenSmoothing(c.between_significance, c.between_gate,
+                                         c.between_min_pairs)
+            headings, self.heading_noise = smooth_between(
+                node, rel, is_node, poses[:, 2], self.scan_odometry_heading[:n],
+                self.scan_reading[:n], step, smoothing)
+            if self.heading_noise is not None and self.heading_noise.trusted(c.between_significance):
+                rel = rel.copy()
+                rel[:, 2] = headings
+                poses = self._place(node, rel, stamp, step)
         return stamp.copy(), poses
 
-    def _spread_corrections(self, node, rel, stamp, poses):
-        """Each scan tracked from node k before node k + 1 was made is placed from both: from k
-        by its tracked pose, from k + 1 by that pose taken back along the edge that made k + 1,
-        and the two blended by the scan's share of the time between the nodes. When the graph
-        bends the chain between k and k + 1, the scans between them follow the bend instead of
-        moving with k alone (docs/method.md §6.2)."""
+    def _node_steps(self) -> np.ndarray:
+        """Per node k, the edge that made node k + 1, in k's frame (NaN where none)."""
         g = self.graph
         ij, kind, z = g.ij[: g.n_edges], g.kind[: g.n_edges], g.z[: g.n_edges]
         made = (kind == ODOMETRY) & (ij[:, 1] == ij[:, 0] + 1)  # node k → k + 1 (Alg. 6)
         step = np.full((g.n_nodes, 3), np.nan)
         step[ij[made, 0]] = z[made]
+        return step
+
+    def _place(self, node, rel, stamp, step):
+        """Each scan placed by the graph: from its node by its pose in the node's frame and,
+        with ``spread_corrections``, blended with its place from the next node: a scan
+        tracked from node k before node k + 1 was made is placed from k + 1 by that pose taken
+        back along the edge that made k + 1, and the two blended by the scan's share of the
+        time between the nodes. When the graph bends the chain between k and k + 1, the scans
+        between them follow the bend instead of moving with k alone (docs/method.md §6.2)."""
+        g = self.graph
+        poses = compose(g.poses[node], rel)
+        if not self.config.front_end.spread_corrections:
+            return poses
         nxt = np.minimum(node + 1, g.n_nodes - 1)
         gap = g.stamps[nxt] - g.stamps[node]
         ok = (node + 1 < g.n_nodes) & ~np.isnan(step[node, 0]) & (gap > 0)
@@ -297,8 +326,9 @@ class FrontEnd:
         self.keyframe = 0
         self.last_stamp = stamp
         self.rebuild_reference()
+        self._reading = NO_READING
         if odometry is not None:
-            self.readings.read(odometry)  # the first reading: odometry starts here
+            self._note_reading(odometry, *self.readings.read(odometry))  # odometry starts here
             self.odometry_rel[:] = 0.0
         self._record(stamp)
         self._remember(scan)
@@ -483,6 +513,7 @@ class FrontEnd:
         (:mod:`swarmslam.runtime.odometry_readings`). Without odometry: the last motion the
         scans showed, continued (docs/method.md §6.1)."""
         step, news, first = self.readings.read(odometry)
+        self._note_reading(odometry, step, news, first)
         if step is None:  # scans only, or a reading the inbox dropped
             return self.rel, self.motion, False
         if not news:
@@ -490,6 +521,16 @@ class FrontEnd:
         if first:  # odometry starts here
             self.odometry_rel[:] = self.rel
         return self.odometry_rel, step, True
+
+    def _note_reading(self, odometry, step, news, first) -> None:
+        """What odometry read at the scan being tracked, for the trajectory."""
+        if step is None:
+            self._reading = NO_READING
+        elif not news:
+            self._reading = STALE_READING
+        else:
+            self._reading = FIRST_READING if first else NEW_READING
+            self._reading_heading = float(odometry[2])
 
     def _record(self, stamp):
         k = self.n_scans
@@ -499,6 +540,8 @@ class FrontEnd:
         self.scan_node[k] = self.keyframe
         self.scan_rel[k] = self.rel
         self.scan_stamp[k] = stamp
+        self.scan_reading[k] = self._reading
+        self.scan_odometry_heading[k] = self._reading_heading
         self.n_scans += 1
 
     # ------------------------------------------------------------------ state
@@ -506,6 +549,8 @@ class FrontEnd:
         k = self.n_scans
         return {"matcher": self.matcher.state(), "scan_node": self.scan_node[:k].copy(),
                 "scan_rel": self.scan_rel[:k].copy(), "scan_stamp": self.scan_stamp[:k].copy(),
+                "scan_reading": self.scan_reading[:k].copy(),
+                "scan_odometry_heading": self.scan_odometry_heading[:k].copy(),
                 "initial_pose": self.initial_pose.copy(), "rel": self.rel.copy(),
                 "motion": self.motion.copy(), "last_odometry": self.readings.last.copy(),
                 "keyframe": self.keyframe, "have_odometry": self.readings.have,
@@ -532,6 +577,14 @@ class FrontEnd:
         self.matcher.restore(state["matcher"])
         self.scan_node[:k], self.scan_rel[:k] = state["scan_node"], state["scan_rel"]
         self.scan_stamp[:k] = state["scan_stamp"]
+        # (saved before odometry was recorded per scan: none read, none smoothed)
+        reading = np.asarray(state.get("scan_reading", np.zeros(k, np.int8)))
+        heading = np.asarray(state.get("scan_odometry_heading", np.zeros(k)), np.float64)
+        if (reading.shape != (k,) or heading.shape != (k,) or not np.all(np.isfinite(heading))
+                or np.any((reading < NO_READING) | (reading > FIRST_READING))):
+            raise ValueError("the trajectory's odometry readings are not one per scan, each "
+                             "a known kind with a finite heading")
+        self.scan_reading[:k], self.scan_odometry_heading[:k] = reading, heading
         self.n_scans = k
         self.initial_pose[:] = state["initial_pose"]
         self.rel[:], self.motion[:] = state["rel"], state["motion"]
