@@ -27,17 +27,18 @@ them, never the map.
     >>> truth = np.cumsum(rng.normal(0.0, 0.01, 3000))         # the robot's true heading
     >>> node = np.arange(3000) // 3                            # every third scan a node's
     >>> is_node = np.arange(3000) % 3 == 0
+    >>> frame = truth[node * 3]                                # each scan's node's heading
     >>> odometry = truth + np.cumsum(rng.normal(0.0, 0.002, 3000))
     >>> rel = np.zeros((3000, 3))                              # matched: σ 0.004 rad between
-    >>> rel[:, 2] = truth - truth[node] + np.where(is_node, 0.0, rng.normal(0.0, 0.004, 3000))
+    >>> rel[:, 2] = np.where(is_node, 0.0, truth - frame + rng.normal(0.0, 0.004, 3000))
     >>> step = np.full((1000, 3), np.nan)
     >>> step[:-1, 2] = truth[3::3] - truth[:-3:3]
     >>> kind = np.full(3000, NEW_READING)
-    >>> smoothed, noise = smooth_between(node, rel, is_node, truth[node] + rel[:, 2], odometry,
+    >>> smoothed, noise = smooth_between(node, rel, is_node, frame + rel[:, 2], odometry,
     ...                                  kind, step, BetweenSmoothing())
     >>> round(float(np.sqrt(noise.between)), 3), round(float(np.sqrt(noise.odometry)), 3)
     (0.004, 0.002)
-    >>> error = lambda h: np.abs(h - (truth - truth[node]))[~is_node].mean()
+    >>> error = lambda h: np.abs(h - (truth - frame))[~is_node].mean()
     >>> bool(error(smoothed) < 0.85 * error(rel[:, 2]))
     True
 """
