@@ -9,7 +9,8 @@ last motion the scans showed), and matching every scan against the same keyframe
 error between two nodes to one match instead of a sum of many. A match that lands too few
 points on the keyframe's surfaces, or (with odometry) corrects odometry by more than the
 odometry gate, has lost track: odometry stands in, or on scans alone the whole box is searched.
-The trajectory — every scan's node and pose in that node's frame — is recorded here.
+The trajectory — every scan's node, pose in that node's frame and odometry reading — is
+recorded here; the scans between nodes are placed from it (docs/method.md §6.2).
 """
 
 from __future__ import annotations
