@@ -93,7 +93,7 @@ class HeadingNoise:
         return self.between - significance * self.between_se > 0 and self.odometry > 0
 
 
-def linked(kind: np.ndarray) -> np.ndarray:
+def linked(kind: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Indices of the scans with a new reading, and for each whether odometry's turn joins it
     to the one before in that list (no scan without a reading between them, and not odometry
     starting afresh)."""
