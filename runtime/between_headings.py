@@ -161,8 +161,8 @@ def smooth_between(node, rel, is_node, headings, odometry, kind, step,
     c = max(noise.node - config.significance * noise.node_se, 1e-12)  # odometry no further
     b = noise.odometry  # than the record shows
     n_nodes = int(node.max()) + 1
-    first = np.full(n_nodes, -1)
-    first[node[::-1]] = np.arange(len(node))[::-1]  # each node's own scan
+    first = np.full(n_nodes, -1)  # each node's own scan (-1: not recorded)
+    first[node[is_node]] = np.flatnonzero(is_node)
     # The chain of points: per interval, node k's scan (its heading 0 in its own frame, σ² c),
     # the scans between with a new reading (their match, a), node k + 1's scan (the edge's
     # heading, 2c: both nodes' errors). Points with no reading keep their match.
@@ -173,7 +173,7 @@ def smooth_between(node, rel, is_node, headings, odometry, kind, step,
     has_reading[new] = True
     scans_between = np.flatnonzero(~is_node & has_reading)
     k = node[scans_between]  # (in recording order, so interval by interval)
-    usable = has_reading[first[k]]
+    usable = (first[k] >= 0) & has_reading[first[k]]
     scans_between, k = scans_between[usable], k[usable]
     if len(scans_between) == 0:
         return out, noise
