@@ -385,14 +385,18 @@ class FrontEndConfig(Section):
     smooth_between_headings: bool = _setting(
         True, "the trajectory's scans between nodes take odometry's turns into their headings, "
         "weighed by the noise the run's own record shows of each (docs/method.md §6.2, "
-        "\"Between-scan headings\"); the map and the nodes are as matched")
+        "\"Between-scan poses\"); the map and the nodes are as matched")
+    smooth_between_positions: bool = _setting(
+        True, "the trajectory's scans between nodes take odometry's motion into their "
+        "positions, weighed as the headings are (docs/method.md §6.2, \"Between-scan poses\"); "
+        "the map and the nodes are as matched")
     between_significance: float = _setting(
-        2.0, "standard errors by which the between-scan matches' estimated heading noise must "
-        "exceed 0 before odometry's turns are taken in (and its lower bound is what is "
-        "used)", ge=0)
+        2.0, "standard errors by which the between-scan matches' estimated noise (heading, "
+        "position) must exceed 0 before odometry's motion is taken in (and its lower bound is "
+        "what is used)", ge=0)
     between_gate: float = _setting(
-        4.0, "σ: an odometry turn between two scans that disagrees with their matches by more "
-        "is not taken in (a slipping wheel, a stamp out of step in a turn)", gt=0)
+        4.0, "σ: odometry's motion between two scans that disagrees with their matches by "
+        "more is not taken in (a slipping wheel, a stamp out of step in a turn)", gt=0)
     between_min_pairs: int = _setting(
         30, "pairs of scans each kind of pair needs before the noise is estimated from it",
         ge=3)

@@ -20,9 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from swarmslam.runtime.between_headings import (FIRST_READING, NEW_READING, NO_READING,
-                                                STALE_READING, BetweenSmoothing,
-                                                smooth_between)
+from swarmslam.runtime.between_scans import (FIRST_READING, NEW_READING, NO_READING,
+                                             STALE_READING, BetweenSmoothing, smooth_headings,
+                                             smooth_positions)
 from swarmslam.runtime.config import FrontEndConfig, SlamConfig
 from swarmslam.runtime.degeneracy import Degeneracy
 from swarmslam.runtime.loop_closure import propagate_covariance
@@ -125,11 +125,11 @@ class FrontEnd:
         self.scan_node = np.zeros(n, np.int64)
         self.scan_rel = np.zeros((n, 3))
         self.scan_stamp = np.zeros(n)
-        # and what odometry read at it (its kind, and its heading for a new one): the scans
-        # between nodes are smoothed with its turns (swarmslam.runtime.between_headings)
+        # and what odometry read at it (its kind, and its pose for a new one): the scans
+        # between nodes are smoothed with its motion (swarmslam.runtime.between_scans)
         self.scan_reading = np.zeros(n, np.int8)
-        self.scan_odometry_heading = np.zeros(n)
-        self._reading, self._reading_heading = NO_READING, 0.0  # the scan being tracked's
+        self.scan_odometry = np.zeros((n, 3))
+        self._reading, self._reading_pose = NO_READING, np.zeros(3)  # the scan being tracked's
         self.n_scans = 0
         self.keyframe = -1
         self.rel = np.zeros(3)  # the current pose in the keyframe's frame
@@ -154,7 +154,8 @@ class FrontEnd:
         self._previous_listed = False
         self.disowned_matches = 0  # matches the previous scan called lost
         self.held_to_odometry = 0  # matches that gave way to the optimum nearer odometry
-        self.heading_noise = None  # the trajectory's last estimate (between_headings.HeadingNoise)
+        # the trajectory's last estimates (between_scans.BetweenNoise), heading and position
+        self.heading_noise = self.position_noise = None
         self.status = "ok"
         self.evaluations = 0  # by the last match (what a viewer plots)
 
@@ -276,16 +277,25 @@ class FrontEnd:
         step = self._node_steps()
         poses = self._place(node, rel, stamp, step)
         c = self.config.front_end
-        if c.smooth_between_headings and n:
-            is_node = np.r_[True, node[1:] != node[:-1]]  # a node's first scan is its own
-            smoothing = BetweenSmoothing(c.between_significance, c.between_gate,
-                                         c.between_min_pairs)
-            headings, self.heading_noise = smooth_between(
-                node, rel, is_node, poses[:, 2], self.scan_odometry_heading[:n],
-                self.scan_reading[:n], step, smoothing)
-            if self.heading_noise is not None and self.heading_noise.trusted(c.between_significance):
-                rel = rel.copy()
+        if not n:
+            return stamp.copy(), poses
+        # the scans between nodes smoothed with odometry's motion, heading first (a position's
+        # motion is read in the frame its heading gives), where the run shows it pays
+        is_node = np.r_[True, node[1:] != node[:-1]]  # a node's first scan is its own
+        smoothing = BetweenSmoothing(c.between_significance, c.between_gate, c.between_min_pairs)
+        odometry, kind = self.scan_odometry[:n], self.scan_reading[:n]
+        rel = rel.copy()
+        if c.smooth_between_headings:
+            headings, self.heading_noise = smooth_headings(node, rel, is_node, poses, odometry,
+                                                           kind, step, smoothing)
+            if headings is not None:
                 rel[:, 2] = headings
+                poses = self._place(node, rel, stamp, step)
+        if c.smooth_between_positions:
+            positions, self.position_noise = smooth_positions(node, rel, is_node, poses, odometry,
+                                                              kind, step, smoothing)
+            if positions is not None:
+                rel[:, :2] = positions
                 poses = self._place(node, rel, stamp, step)
         return stamp.copy(), poses
 
@@ -531,7 +541,7 @@ class FrontEnd:
             self._reading = STALE_READING
         else:
             self._reading = FIRST_READING if first else NEW_READING
-            self._reading_heading = float(odometry[2])
+            self._reading_pose[:] = odometry
 
     def _record(self, stamp):
         k = self.n_scans
@@ -542,7 +552,7 @@ class FrontEnd:
         self.scan_rel[k] = self.rel
         self.scan_stamp[k] = stamp
         self.scan_reading[k] = self._reading
-        self.scan_odometry_heading[k] = self._reading_heading
+        self.scan_odometry[k] = self._reading_pose
         self.n_scans += 1
 
     # ------------------------------------------------------------------ state
@@ -551,7 +561,7 @@ class FrontEnd:
         return {"matcher": self.matcher.state(), "scan_node": self.scan_node[:k].copy(),
                 "scan_rel": self.scan_rel[:k].copy(), "scan_stamp": self.scan_stamp[:k].copy(),
                 "scan_reading": self.scan_reading[:k].copy(),
-                "scan_odometry_heading": self.scan_odometry_heading[:k].copy(),
+                "scan_odometry": self.scan_odometry[:k].copy(),
                 "initial_pose": self.initial_pose.copy(), "rel": self.rel.copy(),
                 "motion": self.motion.copy(), "last_odometry": self.readings.last.copy(),
                 "keyframe": self.keyframe, "have_odometry": self.readings.have,
@@ -578,14 +588,18 @@ class FrontEnd:
         self.matcher.restore(state["matcher"])
         self.scan_node[:k], self.scan_rel[:k] = state["scan_node"], state["scan_rel"]
         self.scan_stamp[:k] = state["scan_stamp"]
-        # (saved before odometry was recorded per scan: none read, none smoothed)
-        reading = np.asarray(state.get("scan_reading", np.zeros(k, np.int8)))
-        heading = np.asarray(state.get("scan_odometry_heading", np.zeros(k)), np.float64)
-        if (reading.shape != (k,) or heading.shape != (k,) or not np.all(np.isfinite(heading))
+        # (saved before odometry's pose was recorded per scan, its heading alone or nothing:
+        # none read, none smoothed)
+        if "scan_odometry" in state:
+            reading = np.asarray(state.get("scan_reading", np.zeros(k, np.int8)))
+            odometry = np.asarray(state["scan_odometry"], np.float64)
+        else:
+            reading, odometry = np.zeros(k, np.int8), np.zeros((k, 3))
+        if (reading.shape != (k,) or odometry.shape != (k, 3) or not np.all(np.isfinite(odometry))
                 or np.any((reading < NO_READING) | (reading > FIRST_READING))):
             raise ValueError("the trajectory's odometry readings are not one per scan, each "
-                             "a known kind with a finite heading")
-        self.scan_reading[:k], self.scan_odometry_heading[:k] = reading, heading
+                             "a known kind with a finite pose")
+        self.scan_reading[:k], self.scan_odometry[:k] = reading, odometry
         self.n_scans = k
         self.initial_pose[:] = state["initial_pose"]
         self.rel[:], self.motion[:] = state["rel"], state["motion"]
