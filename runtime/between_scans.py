@@ -154,17 +154,12 @@ def smooth_headings(node, rel, is_node, trajectory, odometry, kind, step,
     smoothed with odometry's turns, or None where the run shows it does not pay; and the
     noise estimated. The arguments are as :func:`smooth_positions` takes them."""
     d = np.asarray(wrap_angle(trajectory[:, 2] - odometry[:, 2]))
-    noise = estimate_noise(lambda p, q: wrap_angle(d[q] - d[p]), is_node, kind,
-                           config.min_pairs)
-    if noise is None or not noise.trusted(config.significance):
-        return None, noise
-    chain = _Chain(node, is_node, kind, step)
-    if chain.count == 0:
-        return None, noise
     # odometry's heading relative to node k's scan: what its turns put each point at
     relative = lambda scans, base: np.asarray(
         wrap_angle(odometry[scans, 2:] - odometry[base, 2:]))
-    return chain.solve(rel[:, 2:], step[:, 2:], relative, noise, config, angular=True)[:, 0], noise
+    out, noise = _smoothed(lambda p, q: wrap_angle(d[q] - d[p]), relative, rel[:, 2:],
+                           step[:, 2:], node, is_node, kind, step, config, angular=True)
+    return (None if out is None else out[:, 0]), noise
 
 
 def smooth_positions(node, rel, is_node, trajectory, odometry, kind, step,
@@ -178,18 +173,27 @@ def smooth_positions(node, rel, is_node, trajectory, odometry, kind, step,
     odometry's pose at it (read where ``kind`` is a new or first reading); ``kind``: what its
     odometry reading was (``NO_READING`` ...); ``step``: per node k, the edge that made node
     k + 1 in k's frame (NaN where none)."""
-    noise = estimate_noise(
-        lambda p, q: (between(trajectory[q], trajectory[p])[:, :2]
-                      - between(odometry[q], odometry[p])[:, :2]),
-        is_node, kind, config.min_pairs)
+    def disagreement(p, q):
+        return (between(trajectory[q], trajectory[p])[:, :2]
+                - between(odometry[q], odometry[p])[:, :2])
+
+    # odometry's position in node k's scan's frame (its robot frame there, as node k's is)
+    relative = lambda scans, base: between(odometry[scans], odometry[base])[:, :2]
+    return _smoothed(disagreement, relative, rel[:, :2], step[:, :2], node, is_node, kind, step,
+                     config, angular=False)
+
+
+def _smoothed(disagreement, relative, matched, edge, node, is_node, kind, step,
+              config: BetweenSmoothing, angular: bool):
+    """The noise fitted from ``disagreement`` and, where it is trusted and some scan between
+    nodes can be re-estimated, ``matched`` smoothed (:meth:`_Chain.solve`); else None."""
+    noise = estimate_noise(disagreement, is_node, kind, config.min_pairs)
     if noise is None or not noise.trusted(config.significance):
         return None, noise
     chain = _Chain(node, is_node, kind, step)
     if chain.count == 0:
         return None, noise
-    # odometry's position in node k's scan's frame (its robot frame there, as node k's is)
-    relative = lambda scans, base: between(odometry[scans], odometry[base])[:, :2]
-    return chain.solve(rel[:, :2], step[:, :2], relative, noise, config, angular=False), noise
+    return chain.solve(matched, edge, relative, noise, config, angular), noise
 
 
 class _Chain:
