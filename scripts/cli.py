@@ -203,6 +203,10 @@ def _replay(args) -> int:
         print(f"{m['scans']} scans, {m['nodes']} nodes, {m['loops_accepted']} loops closed, "
               f"{m['real_time_factor']:.1f}x real time, latency {m['latency_ms_median']:.1f} ms "
               f"median / {m['latency_ms_p99']:.1f} ms p99")
+    seen = m.get("odometry_seen", {})
+    if "translation_scale" in seen:
+        print(f"odometry: the scans put the robot {seen['translation_scale']:.3f} times as far "
+              "as odometry read (metrics.json: odometry_seen)")
     if "eT" in m:
         print(f"relations: eT {m['eT']:.4f} ± {m['eT_std']:.4f} m, "
               f"eR {m['eR_deg']:.3f} ± {m['eR_std']:.3f} deg ({m['relations_used']} used)")

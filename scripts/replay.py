@@ -23,6 +23,7 @@ from swarmslam.runtime.writers import write_json_atomic
 from swarmslam.logs import BagOptions, read_log
 from swarmslam.metrics import kummerle, match_relations
 from swarmslam.outputs import check_writable, output_set, write_results
+from swarmslam.odometry_check import odometry_seen
 from swarmslam.progress import Progress
 from swarmslam.relations import read_relations
 from swarmslam.run_view import frame_of
@@ -308,6 +309,7 @@ def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, s
         "matches_degenerate": slam.front_end.degenerate_matches,
         "matches_disowned": slam.front_end.disowned_matches,
         "matches_held_to_odometry": slam.front_end.held_to_odometry,
+        "odometry_seen": odometry_seen(slam.front_end, poses),
         **timing,
         "status": run_status(runtime.status, log, runtime),
         "runtime": runtime.report(),
