@@ -392,6 +392,9 @@ class FrontEndConfig(Section):
     odometry_scale_dead_zone: float = _setting(
         0.005, "a fitted scale this near 1 is 1: the matches' own scale errs by a per-mille or "
         "two", ge=0)
+    odometry_scale_significance: float = _setting(
+        2.0, "standard errors (the steps' scatter about the fit) by which the fitted scale must "
+        "clear the dead zone before it is used", ge=0)
     spread_corrections: bool = _setting(
         True, "a scan between two nodes takes the graph's correction of both, shared by time "
         "(false: its tracking node's alone)")
@@ -965,7 +968,7 @@ EXPERT_FIELDS = frozenset({
     "front_end.previous_scan_gain", "front_end.previous_scan_fit",
     "front_end.between_significance", "front_end.between_gate", "front_end.between_min_pairs",
     "front_end.odometry_scale_prior_travel", "front_end.odometry_scale_limits",
-    "front_end.odometry_scale_dead_zone",
+    "front_end.odometry_scale_dead_zone", "front_end.odometry_scale_significance",
     "loop_closure.agreement_nodes", "loop_closure.agreement_distance",
     "loop_closure.agreement_angle",
     "matcher.surface_bend", "matcher.surface_gap_ratio", "matcher.coarse_radius",

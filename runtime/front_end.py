@@ -144,7 +144,8 @@ class FrontEnd:
         # from it can be observed)
         c = config.front_end
         self.odometry_scale = OdometryScale(c.odometry_scale_prior_travel,
-                                            c.odometry_scale_limits, c.odometry_scale_dead_zone)
+                                            c.odometry_scale_limits, c.odometry_scale_dead_zone,
+                                            c.odometry_scale_significance)
         self.scaled_edges = ScaledEdges(config.capacity.max_edges)
         self._trusted_base = False
         self.weak = False  # a match since the last node was replaced by odometry
@@ -652,7 +653,7 @@ class FrontEnd:
             raise ValueError("the stale readings' motion is not one this front end keeps")
         readings.reading_step[:] = step
         # (saved before odometry's scale was fitted: the fit starts afresh)
-        self.odometry_scale.restore(state.get("odometry_scale", np.zeros(3)))
+        self.odometry_scale.restore(state.get("odometry_scale", np.zeros(5)))
         m = self.graph.n_edges
         self.scaled_edges.restore(state.get("scaled_edges", {
             "raw": np.zeros((m, 2)), "used": np.zeros((m, 2)), "pending": np.zeros((2, 2)),

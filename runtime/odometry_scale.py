@@ -1,7 +1,8 @@
 """Odometry's scale, fitted to the matches, and the node edges that follow it (docs/method.md
 §6.1, "Odometry's scale").
 
-    scale = OdometryScale(prior_travel=5.0, limits=(0.8, 1.25), dead_zone=0.005)
+    scale = OdometryScale(prior_travel=5.0, limits=(0.8, 1.25), dead_zone=0.005,
+                          significance=2.0)
     step = scale.apply(step)      # odometry's predicted motion, its translation scaled
     scale.observe(matched)        # the motion the scans then showed (a match that pins it)
     edges = ScaledEdges(max_edges)
@@ -18,8 +19,10 @@ least-squares fit of their translations to odometry's, ``Σ m·o / Σ o·o`` ove
 observed, which weighs each step by its length (a turn in place, which moves a scanner
 mounted off the axle, says nothing of the wheels). A prior of 1 counts as ``prior_travel``
 metres of travel at the run's own mean step, so a short run keeps odometry as it reads; the
-fit is clipped to ``limits``, and within ``dead_zone`` of 1 it is 1: the matches' own scale
-errs by a per-mille or two (the simulator's scanners), which is no wheel's to correct.
+fit is clipped to ``limits``, and it is 1 unless it stands ``significance`` standard errors
+(from the steps' own scatter about it) beyond ``dead_zone`` of 1: the matches' own scale errs
+by a per-mille or two (the simulator's scanners), which is no wheel's to correct, and the first
+metres' fit swings by more than that.
 
 A scale learnt while the robot drives changes under a corridor's first pass: that pass took
 odometry's distance at the scale of its time, a later pass at a later one, and a loop closed
@@ -39,24 +42,32 @@ import numpy as np
 class OdometryScale:
     """The fit so far, and the prediction scaled by it (see module doc)."""
 
-    def __init__(self, prior_travel: float, limits: tuple[float, float], dead_zone: float):
+    def __init__(self, prior_travel: float, limits: tuple[float, float], dead_zone: float,
+                 significance: float):
         self.prior_travel = float(prior_travel)
         self.limits = (float(limits[0]), float(limits[1]))
         self.dead_zone = float(dead_zone)
-        self.sums = np.zeros(3)  # Σ m·o, Σ o·o (m²) and Σ |o| (m) over the steps observed
+        self.significance = float(significance)
+        # Σ m·o, Σ o·o (m²), Σ |o| (m), Σ m·m (m²) and the count of the steps observed
+        self.sums = np.zeros(5)
         self.raw = np.zeros(3)  # the step apply() was last given, as odometry read it
         self._scaled = np.zeros(3)
 
     @property
     def scale(self) -> float:
-        """Odometry's translation times this is the scans' (1 until the fit leaves the dead
-        zone)."""
-        matched, squared, travel = self.sums
-        if travel <= 0.0:
+        """Odometry's translation times this is the scans' (1 until the fit stands clear of
+        the dead zone)."""
+        matched, squared, travel, matched_squared, count = self.sums
+        if travel <= 0.0 or count < 2:
             return 1.0
         prior = self.prior_travel * squared / travel  # prior_travel m at the mean step
         value = min(max((matched + prior) / (squared + prior), self.limits[0]), self.limits[1])
-        return value if abs(value - 1.0) > self.dead_zone else 1.0
+        fit = matched / squared  # the steps' own, and their scatter about it (two axes each)
+        scatter = max(matched_squared - 2.0 * fit * matched + fit * fit * squared, 0.0)
+        error = math.sqrt(scatter / (2.0 * count - 1.0) / squared)
+        if abs(value - 1.0) - self.dead_zone > self.significance * error:
+            return value
+        return 1.0
 
     def apply(self, step) -> np.ndarray:
         """``step`` (odometry's motion, x, y, θ) with its translation scaled; kept as read in
@@ -76,14 +87,16 @@ class OdometryScale:
         self.sums[0] += float(matched[0] * o[0] + matched[1] * o[1])
         self.sums[1] += squared
         self.sums[2] += math.sqrt(squared)
+        self.sums[3] += float(matched[0] * matched[0] + matched[1] * matched[1])
+        self.sums[4] += 1.0
 
     def restore(self, sums) -> None:
-        """The sums a saved run had (Σ m·o, Σ o·o, Σ |o|); refused unless three finite numbers,
-        the two lengths non-negative."""
+        """The sums a saved run had (Σ m·o, Σ o·o, Σ |o|, Σ m·m, count); refused unless five
+        finite numbers, all but the first non-negative."""
         sums = np.asarray(sums, np.float64)
-        if sums.shape != (3,) or not np.all(np.isfinite(sums)) or sums[1] < 0 or sums[2] < 0:
-            raise ValueError("odometry's scale sums are not three finite numbers, the lengths "
-                             "non-negative")
+        if sums.shape != (5,) or not np.all(np.isfinite(sums)) or np.any(sums[1:] < 0):
+            raise ValueError("odometry's scale sums are not five finite numbers, all but the "
+                             "first non-negative")
         self.sums[:] = sums
 
 

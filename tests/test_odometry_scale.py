@@ -26,7 +26,7 @@ def test_the_fit_finds_a_wheels_scale_from_noisy_matches():
     rng = np.random.default_rng(0)
     o = np.c_[rng.uniform(0.02, 0.08, 2000), rng.normal(0, 0.005, 2000), np.zeros(2000)]
     m = o * 1.03 + np.c_[rng.normal(0, 0.002, (2000, 2)), np.zeros(2000)]
-    scale = _observed(OdometryScale(0.0, (0.8, 1.25), 0.0), o, m)
+    scale = _observed(OdometryScale(0.0, (0.8, 1.25), 0.0, 0.0), o, m)
     assert scale.scale == pytest.approx(1.03, abs=0.002)
     # the prediction is odometry's translation scaled, its turn as read
     step = scale.apply(np.array([0.1, -0.02, 0.3]))
@@ -36,38 +36,52 @@ def test_the_fit_finds_a_wheels_scale_from_noisy_matches():
 def test_the_prior_holds_a_short_run_near_odometry_and_gives_way_with_travel():
     o = np.tile([0.05, 0.0, 0.0], (400, 1))  # 20 m at 5 cm a step
     m = o * 1.04
-    short = _observed(OdometryScale(5.0, (0.8, 1.25), 0.0), o[:20], m[:20])  # 1 m travelled
+    short = _observed(OdometryScale(5.0, (0.8, 1.25), 0.0, 0.0), o[:20], m[:20])  # 1 m travelled
     assert short.scale == pytest.approx(1 + 0.04 * 1 / 6)  # 1 m of 1.04 against 5 m of 1
-    long = _observed(OdometryScale(5.0, (0.8, 1.25), 0.0), o, m)
+    long = _observed(OdometryScale(5.0, (0.8, 1.25), 0.0, 0.0), o, m)
     assert long.scale == pytest.approx(1 + 0.04 * 20 / 25)
-    assert OdometryScale(5.0, (0.8, 1.25), 0.0).scale == 1.0  # nothing observed: as odometry reads
+    assert OdometryScale(5.0, (0.8, 1.25), 0.0, 0.0).scale == 1.0  # nothing observed: as odometry reads
 
 
 def test_turns_in_place_and_unusable_matches_say_nothing_and_the_fit_is_clipped():
-    scale = OdometryScale(0.0, (0.9, 1.1), 0.0)
+    scale = OdometryScale(0.0, (0.9, 1.1), 0.0, 0.0)
     _observed(scale, [np.array([0.0, 0.0, 0.5])], [np.array([0.03, 0.01, 0.5])])  # mount offset
     _observed(scale, [np.array([0.05, 0.0, 0.0])], [np.array([np.nan, 0.0, 0.0])])
     assert not scale.sums.any() and scale.scale == 1.0
-    _observed(scale, [np.array([0.05, 0.0, 0.0])], [np.array([0.1, 0.0, 0.0])])  # twice as far
-    assert scale.scale == 1.1
+    _observed(scale, [np.array([0.05, 0.0, 0.0])] * 2, [np.array([0.1, 0.0, 0.0])] * 2)
+    assert scale.scale == 1.1  # twice as far, clipped
 
 
 def test_a_fit_within_the_dead_zone_leaves_odometry_as_it_reads():
     o = np.tile([0.05, 0.0, 0.0], (400, 1))
-    near = _observed(OdometryScale(0.0, (0.8, 1.25), 0.005), o, o * 1.004)
+    near = _observed(OdometryScale(0.0, (0.8, 1.25), 0.005, 0.0), o, o * 1.004)
     assert near.scale == 1.0
     assert np.array_equal(near.apply(np.array([0.1, 0.2, 0.3])), [0.1, 0.2, 0.3])
-    far = _observed(OdometryScale(0.0, (0.8, 1.25), 0.005), o, o * 0.99)
+    far = _observed(OdometryScale(0.0, (0.8, 1.25), 0.005, 0.0), o, o * 0.99)
     assert far.scale == pytest.approx(0.99)
 
 
+def test_a_fit_is_used_only_once_the_steps_scatter_leaves_it_clear_of_the_dead_zone():
+    """Steps 1.5% long with 4 mm of scatter each (8% of a 5 cm step): a few metres cannot
+    tell 1.015 from the dead zone's edge, tens of metres can."""
+    rng = np.random.default_rng(1)
+    o = np.c_[np.full(2000, 0.05), np.zeros(2000), np.zeros(2000)]
+    m = o * 1.015 + np.c_[rng.normal(0, 0.004, (2000, 2)), np.zeros(2000)]
+    few = _observed(OdometryScale(0.0, (0.8, 1.25), 0.005, 2.0), o[:40], m[:40])  # 2 m
+    assert few.scale == 1.0
+    many = _observed(OdometryScale(0.0, (0.8, 1.25), 0.005, 2.0), o, m)  # 100 m
+    assert many.scale == pytest.approx(1.015, abs=0.003)
+    exact = _observed(OdometryScale(0.0, (0.8, 1.25), 0.005, 2.0), o[:3], o[:3] * 1.015)
+    assert exact.scale == pytest.approx(1.015)  # no scatter: three steps suffice
+
+
 def test_a_saved_fit_restores_and_a_foreign_one_is_refused():
-    scale = _observed(OdometryScale(1.0, (0.8, 1.25), 0.0), [np.array([0.1, 0, 0])] * 30,
+    scale = _observed(OdometryScale(1.0, (0.8, 1.25), 0.0, 0.0), [np.array([0.1, 0, 0])] * 30,
                       [np.array([0.105, 0, 0])] * 30)
-    again = OdometryScale(1.0, (0.8, 1.25), 0.0)
+    again = OdometryScale(1.0, (0.8, 1.25), 0.0, 0.0)
     again.restore(scale.sums.copy())
     assert again.scale == scale.scale
-    for bad in ([1.0, 2.0], [np.nan, 1.0, 1.0], [1.0, -1.0, 1.0]):
+    for bad in ([1.0, 2.0, 1.0], [np.nan, 1.0, 1.0, 1.0, 2.0], [1.0, -1.0, 1.0, 1.0, 2.0]):
         with pytest.raises(ValueError):
             again.restore(bad)
 
