@@ -379,22 +379,6 @@ class FrontEndConfig(Section):
         "per edge, 0.16 m with the former sigma_translation of 5 cm)", gt=0, le=1)
     curvature_step: tuple[float, float] = _setting(
         (0.05, 0.01), "finite-difference steps (m, rad) of the match's curvature", gt=0)
-    calibrate_odometry_scale: bool = _setting(
-        True, "odometry's translations are scaled by what the matches that pin the motion say "
-        "of them (a wheel a few per cent off; docs/method.md §6.1, \"Odometry's scale\"): "
-        "the prediction, the node edges that took odometry's distance along a corridor and "
-        "the trajectory's between-scan positions use odometry scaled")
-    odometry_scale_prior_travel: float = _setting(
-        5.0, "m: a scale of 1 counts as this much travel at the run's mean step in the fit",
-        ge=0)
-    odometry_scale_limits: tuple[float, float] = _setting(
-        (0.8, 1.25), "the least and greatest scale the fit may give", gt=0)
-    odometry_scale_dead_zone: float = _setting(
-        0.005, "a fitted scale this near 1 is 1: the matches' own scale errs by a per-mille or "
-        "two", ge=0)
-    odometry_scale_significance: float = _setting(
-        2.0, "standard errors (the steps' scatter about the fit) by which the fitted scale must "
-        "clear the dead zone before it is used", ge=0)
     spread_corrections: bool = _setting(
         True, "a scan between two nodes takes the graph's correction of both, shared by time "
         "(false: its tracking node's alone)")
@@ -416,13 +400,6 @@ class FrontEndConfig(Section):
     between_min_pairs: int = _setting(
         30, "pairs of scans each kind of pair needs before the noise is estimated from it",
         ge=3)
-
-    def __post_init__(self):
-        super().__post_init__()
-        low, high = self.odometry_scale_limits
-        if not low <= 1.0 <= high:
-            raise ConfigError("front_end.odometry_scale_limits: must hold 1 (odometry as it "
-                              f"reads) between them, got {self.odometry_scale_limits}")
 
 
 @dataclass(frozen=True)
@@ -967,8 +944,6 @@ EXPERT_FIELDS = frozenset({
     "front_end.odometry_heading_weight", "front_end.odometry_heading_sigma",
     "front_end.previous_scan_gain", "front_end.previous_scan_fit",
     "front_end.between_significance", "front_end.between_gate", "front_end.between_min_pairs",
-    "front_end.odometry_scale_prior_travel", "front_end.odometry_scale_limits",
-    "front_end.odometry_scale_dead_zone", "front_end.odometry_scale_significance",
     "loop_closure.agreement_nodes", "loop_closure.agreement_distance",
     "loop_closure.agreement_angle",
     "matcher.surface_bend", "matcher.surface_gap_ratio", "matcher.coarse_radius",

@@ -28,7 +28,6 @@ from swarmslam.runtime.degeneracy import Degeneracy
 from swarmslam.runtime.loop_closure import propagate_covariance
 from swarmslam.runtime.node_scans import NodeScans
 from swarmslam.runtime.odometry_readings import OdometryReadings
-from swarmslam.runtime.odometry_scale import OdometryScale, ScaledEdges
 from swarmslam.runtime.pose import between, compose, interpolate, wrap_angle
 from swarmslam.runtime.pose_graph import ODOMETRY, PoseGraph, information_from_sigma
 from swarmslam.runtime.scan import PointScan
@@ -139,15 +138,6 @@ class FrontEnd:
         # The pose (in the keyframe's frame) of the scan that brought odometry's last new
         # reading: its motion is predicted from there (docs/method.md §6.1).
         self.odometry_rel = np.zeros(3)
-        # odometry's translation scale, fitted to the matches that pin the motion, and the node
-        # edges that follow it; whether the pose at odometry_rel pinned the motion (a motion
-        # from it can be observed)
-        c = config.front_end
-        self.odometry_scale = OdometryScale(c.odometry_scale_prior_travel,
-                                            c.odometry_scale_limits, c.odometry_scale_dead_zone,
-                                            c.odometry_scale_significance)
-        self.scaled_edges = ScaledEdges(config.capacity.max_edges)
-        self._trusted_base = False
         self.weak = False  # a match since the last node was replaced by odometry
         self.lost_matches = 0
         self.overruled_odometry = 0  # matches the gate refused that the scans upheld
@@ -178,7 +168,6 @@ class FrontEnd:
             return Tracking(self.graph.poses[0].copy(), True, 0, 0.0)
         base, step, news = self._prediction(odometry)
         self.stale = odometry is not None and not news  # the same reading as before
-        scaling = self._reading != NO_READING and self.config.front_end.calibrate_odometry_scale
         guess = compose(base, step)
         # Alg. 5, each point turned to the stamp's heading (the sweep, docs/method.md §6.1)
         match, scan = self.sweep.align(self.matcher, scan, self.reference, guess, self.motion,
@@ -187,32 +176,18 @@ class FrontEnd:
         pose = match.pose
         if news:  # (a stale reading predicts no turn to weigh a match against)
             pose = self._nearer_odometry(scan, match, guess, step)
-        trusted = pose is match.pose  # not held to odometry's heading
         self.degeneracy = None
         if self.config.front_end.degeneracy_ratio > 0:
             pose = self._constrained(scan, pose, guess)
-            trusted = trusted and not self.degeneracy.degenerate
         # (after the slide along a degenerate axis is dropped: there the box's edge is no sign)
         inside = not self.matcher.at_box_edge(pose, self.config.front_end.window_margin)
         if self._lost(scan, pose, guess, step, odometry is not None, inside):
             pose = self._recover(scan, pose, guess, step, odometry is not None)
-            trusted = False
-        elif self.degeneracy is not None and self.degeneracy.degenerate and scaling:
-            # the prediction stood in along the axis: the node edge holds odometry's distance
-            read = compose(base, self.odometry_scale.raw)
-            self.scaled_edges.note(self.degeneracy.axis, guess[:2] - self.rel[:2],
-                                   read[:2] - self.rel[:2])
         self.motion = between(pose, self.rel)
         self.rel = pose
         if news:
-            # a motion between two matches that pin it is what odometry's step really was
-            if trusted and self._trusted_base and scaling:
-                self.odometry_scale.observe(between(pose, base))
             self.odometry_rel[:] = pose
-            self._trusted_base = trusted
         node_added = self.insert_node(scan, stamp)  # Alg. 6
-        if scaling:  # every node edge's odometry part at the scale fitted now
-            self.scaled_edges.rescale(self.graph, self.odometry_scale.scale)
         self.last_interval = stamp - self.last_stamp
         self.last_stamp = stamp
         self._record(stamp)
@@ -242,7 +217,7 @@ class FrontEnd:
             info = info / c.weak_information_factor
             self.weak = False
         node = g.add_node(compose(g.poses[previous], z), stamp)
-        self.scaled_edges.close(g.add_edge(previous, node, z, info, ODOMETRY))
+        g.add_edge(previous, node, z, info, ODOMETRY)
         cov = self.nodes.cov
         propagate_covariance(cov[previous], g.poses[previous], z, np.linalg.inv(info),
                              cov[node])
@@ -264,7 +239,7 @@ class FrontEnd:
         rel = np.asarray(rel, np.float64)
         node = g.add_node(compose(g.poses[anchor], rel), stamp)
         info = self.information()
-        self.scaled_edges.close(g.add_edge(anchor, node, rel, info, ODOMETRY), taken=False)
+        g.add_edge(anchor, node, rel, info, ODOMETRY)
         cov = self.nodes.cov
         propagate_covariance(cov[anchor], g.poses[anchor], rel, np.linalg.inv(info), cov[node])
         self.nodes.store(node, scan)
@@ -273,7 +248,6 @@ class FrontEnd:
         self.weak, self.readings.have = False, False
         self.last_stamp, self.last_interval = stamp, math.nan  # (not the saved session's)
         self._prediction(odometry)  # the new run's odometry starts here
-        self._trusted_base = True  # at the node, placed where localization confirmed it
         self.rebuild_reference()
         self._record(stamp)
         self._remember(scan)
@@ -318,9 +292,8 @@ class FrontEnd:
                 rel[:, 2] = headings
                 poses = self._place(node, rel, stamp, step)
         if c.smooth_between_positions:
-            scale = self.odometry_scale.scale if c.calibrate_odometry_scale else 1.0
             positions, self.position_noise = smooth_positions(node, rel, is_node, poses, odometry,
-                                                              kind, step, smoothing, scale)
+                                                              kind, step, smoothing)
             if positions is not None:
                 rel[:, :2] = positions
                 poses = self._place(node, rel, stamp, step)
@@ -368,7 +341,6 @@ class FrontEnd:
         if odometry is not None:
             self._note_reading(odometry, *self.readings.read(odometry))  # odometry starts here
             self.odometry_rel[:] = 0.0
-            self._trusted_base = True  # the first node's own pose
         self._record(stamp)
         self._remember(scan)
 
@@ -555,8 +527,6 @@ class FrontEnd:
         self._note_reading(odometry, step, news, first)
         if step is None:  # scans only, or a reading the inbox dropped
             return self.rel, self.motion, False
-        if self.config.front_end.calibrate_odometry_scale:  # docs/method.md §6.1
-            step = self.odometry_scale.apply(step)
         if not news:
             return self.rel, step, False
         if first:  # odometry starts here
@@ -600,9 +570,6 @@ class FrontEnd:
                 "submap_nodes": self._submap_nodes[: self._n_submap].copy(),
                 "submap_poses": self._submap_poses[: self._n_submap].copy(),
                 "odometry_rel": self.odometry_rel.copy(),
-                "odometry_scale": self.odometry_scale.sums.copy(),
-                "scaled_edges": self.scaled_edges.state(self.graph.n_edges),
-                "trusted_base": self._trusted_base,
                 "stale_scans": self.readings.stale_scans,
                 "reading_scans": self.readings.reading_scans,
                 "reading_step": self.readings.reading_step.copy(),
@@ -652,13 +619,6 @@ class FrontEnd:
                 readings.stale_scans, readings.reading_scans) < 0:
             raise ValueError("the stale readings' motion is not one this front end keeps")
         readings.reading_step[:] = step
-        # (saved before odometry's scale was fitted: the fit starts afresh)
-        self.odometry_scale.restore(state.get("odometry_scale", np.zeros(5)))
-        m = self.graph.n_edges
-        self.scaled_edges.restore(state.get("scaled_edges", {
-            "raw": np.zeros((m, 2)), "used": np.zeros((m, 2)), "pending": np.zeros((2, 2)),
-            "applied": 1.0}), m)
-        self._trusted_base = bool(state.get("trusted_base", False))
         # (saved before the sweep was undistorted: the trajectory's last stamp; no motion's
         # interval, so the next scan's first pass leaves its sweep as it came)
         self.last_stamp = float(state.get("last_stamp", self.scan_stamp[k - 1] if k else math.nan))

@@ -60,8 +60,6 @@ def test_a_runs_trajectory_shows_a_wheel_radius_set_too_large():
     _, poses = slam.trajectory()
     seen = odometry_seen(slam.front_end, poses)
     assert seen["translation_scale"] == pytest.approx(1 / 1.05, abs=0.01)
-    # the SLAM's own fit, shrunk towards 1 by its prior over a run this short
-    assert 1 / 1.05 - 0.01 < seen["fitted_scale"] < 0.99
     assert seen["pairs"] == len(truth) - 1
 
 
