@@ -2,10 +2,10 @@
 docs/formats.md, "metrics.json").
 
 A robot's odometry is set up by hand: a wheel radius, a wheel base. The SLAM does not learn
-them (a scale learnt on line makes a corridor's passes disagree:
-docs/experiments/2026-11-29-odometry-scale-again.md), but a run can tell the user how far off
-they are, from the trajectory's motion between scans with consecutive new readings against
-odometry's over the same readings:
+them (a scale learnt on line makes a corridor's passes disagree, and re-scaling the graph's
+edges as it changes once cost a map: docs/experiments/2026-11-29-odometry-scale-again.md), but
+a run can tell the user how far off they are, from the trajectory's motion between scans with
+consecutive new readings against odometry's over the same readings:
 
 - ``translation_scale``: the least-squares fit of the trajectory's translations to odometry's,
   ``Σ m·o / Σ o·o`` in each pair's first frame; 1.03 means the robot went 3% farther than its
