@@ -42,8 +42,9 @@ def translation_scale(trajectory, odometry, kind) -> tuple[float | None, int]:
     p, q = new[:-1][joined[1:]], new[1:][joined[1:]]
     if not len(p):
         return None, 0
-    matched = between(np.asarray(trajectory)[q], np.asarray(trajectory)[p])[:, :2]
-    read = between(np.asarray(odometry)[q], np.asarray(odometry)[p])[:, :2]
+    trajectory, odometry = np.asarray(trajectory), np.asarray(odometry)
+    matched = between(trajectory[q], trajectory[p])[:, :2]
+    read = between(odometry[q], odometry[p])[:, :2]
     squared = float(np.sum(read * read))
     if not squared > 0.0:
         return None, int(len(p))
