@@ -182,7 +182,7 @@ class FrontEnd:
         # (after the slide along a degenerate axis is dropped: there the box's edge is no sign)
         inside = not self.matcher.at_box_edge(pose, self.config.front_end.window_margin)
         if self._lost(scan, pose, guess, step, odometry is not None, inside):
-            pose = self._recover(scan, pose, guess, step, odometry is not None)
+            pose = self._recover(scan, pose, guess, step, odometry is not None, inside)
         self.motion = between(pose, self.rel)
         self.rel = pose
         if news:
@@ -433,16 +433,20 @@ class FrontEnd:
         """A match (``fit``: its share of points on the keyframe's surfaces) is trusted over
         odometry's prediction ``guess`` when it is an optimum inside its search box, not one
         pressed against its edge, fits, and fits clearly better than the prediction does
-        (:func:`scans_overrule`) — unless it moves a new reading's position alone: that match
-        may have slid along a corridor, and odometry's position errs little between scans
-        unless its heading does (docs/method.md §6.1)."""
+        (:func:`scans_overrule`) — unless it moves a new reading's position alone, its heading
+        within the gate's fixed part (``odometry_gate``'s angle): that match may have slid
+        along a corridor, and odometry's position errs little between scans unless its heading
+        does (docs/method.md §6.1)."""
         c = self.config.front_end
         if not inside or fit < c.min_track_inliers:
             return False
         if self.stale:
             return scans_overrule(fit, self._inliers(scan, guess), True, c)
+        # "alone": the heading within the gate's own part, not its share of the turn: a match
+        # turning a fast turn's prediction by 20° is no slide along a corridor, and odometry's
+        # position, composed along its heading, is off with it (docs/method.md §6.1)
         if (contradicts_odometry(pose, guess, step, c, heading=False)
-                and not contradicts_odometry(pose, guess, step, c, position=False)):
+                and abs(float(between(pose, guess)[2])) <= c.odometry_gate[1]):
             return False
         # a narrower band than a lost match's tells two poses a few degrees apart
         fit, predicted = (self._inliers(scan, p, c.odometry_gate_distance) for p in (pose, guess))
@@ -486,32 +490,42 @@ class FrontEnd:
             self.degenerate_matches += 1
         return self.degeneracy.remap(pose, guess)
 
-    def _recover(self, scan, pose, guess, step, have_odometry: bool):
-        """The guided match lost track. With odometry, the match is sought again around the
-        motion the scans showed last, continued (after a stale reading, over a heading window
-        as wide as ``stale_turn_window``): odometry that lags the scans and then catches up in
-        a burst (MIT-CSAIL's turns) predicts tens of degrees off. That match stands if
-        it fits the scans, and clearly better than odometry's prediction; otherwise the
-        prediction stands in (the next node's edge weakened): a match that merely fits as well
-        may be shifted along a corridor (ACES: eT 0.048 → 0.092 m from one such recovery). On
-        scans alone, search the whole box without a guess — the swarm's strength — and keep
-        the better fitting of the two."""
+    def _recover(self, scan, pose, guess, step, have_odometry: bool, inside: bool):
+        """The guided match ``pose`` lost track. With odometry, the match is sought again
+        around the motion the scans showed last, continued (after a stale reading, over a
+        heading window as wide as ``stale_turn_window``), and, when ``pose`` pressed against
+        its box's edge (not ``inside``), around ``pose`` itself: the optimum lay beyond the
+        box. Odometry that lags the scans and then catches up in a burst (MIT-CSAIL's turns)
+        predicts tens of degrees off, and so may the scans' last motion when a turn starts or
+        stops (the simulated robot's turns at 2 rad/s, read every 0.8 s: docs/method.md §6.1).
+        The better fitting of the matches that fit the scans, and clearly better than
+        odometry's prediction, stands; otherwise the prediction stands in (the next node's
+        edge weakened): a match that merely fits as well may be shifted along a corridor
+        (ACES: eT 0.048 → 0.092 m from one such recovery). On scans alone, search the whole
+        box without a guess — the swarm's strength — and keep the better fitting of the two."""
         self.lost_matches += 1
         if have_odometry:
             c = self.config.front_end
-            prior = compose(self.rel, self.motion)
             # (a stale reading says nothing of a turn in place since: 2 rad/s for a scan at
             # 4.7 Hz is 24°, beyond the guess window; the scans' last motion may not show it)
             window = self._turn_window if self.stale else None
-            match = self.matcher.align_scans(scan, self.reference, prior, window).pose
-            inside = not self.matcher.at_box_edge(match, c.window_margin)
-            if c.degeneracy_ratio > 0:  # along a degenerate axis, odometry's position stands
-                match = self._constrained(scan, match, guess)
-                inside = not self.matcher.at_box_edge(self.degeneracy.remap(match, prior),
-                                                      c.window_margin)
-            if self._overrules(scan, match, self._inliers(scan, match), guess, step, inside):
+            best, best_fit = guess, -1.0
+            for prior in (compose(self.rel, self.motion), None if inside else pose):
+                if prior is None:
+                    continue
+                match = self.matcher.align_scans(scan, self.reference, prior, window).pose
+                inside_box = not self.matcher.at_box_edge(match, c.window_margin)
+                if c.degeneracy_ratio > 0:  # along a degenerate axis, odometry's position
+                    match = self._constrained(scan, match, guess)  # stands
+                    inside_box = not self.matcher.at_box_edge(
+                        self.degeneracy.remap(match, prior), c.window_margin)
+                fit = self._inliers(scan, match)
+                if fit > best_fit and self._overrules(scan, match, fit, guess, step, inside_box):
+                    best, best_fit, degeneracy = match, fit, self.degeneracy
+            if best_fit >= 0.0:
+                self.degeneracy = degeneracy  # (the next node's edge is weak where it slid)
                 self.rescued_matches += 1
-                return match
+                return best
             self.weak = True
             return guess
         wide = self.matcher.align_scans(scan, self.reference, None).pose

@@ -608,3 +608,51 @@ def test_a_repeated_reading_at_rest_predicts_no_motion():
         slam.step(scan, np.array(pose), float(k))
     assert all(np.array_equal(*guesses[k]) for k in range(10, 20))
     assert not any(np.array_equal(*guesses[k]) for k in range(2, 10))
+
+
+def test_a_match_pressed_against_its_box_is_sought_again_around_itself():
+    """A robot that turns on the spot 25° a scan from rest, then stops, its odometry reading
+    one scan late: as the turn starts, odometry and the scans' last motion both predict no
+    turn, and as it stops both predict 25° more; the truth lies beyond the ±17° box either
+    time. The match pressed against the box's edge is sought again around itself, found
+    where the robot is, and stands (docs/method.md §6.1); without that second search the
+    prediction stands in, 25° off."""
+    loop = loop_path(80)
+    world = room_world(0, size=(12.0, 9.0), boxes=14, walls=0, keep_clear=loop)
+    turn = np.radians(25.0)
+    turns = np.r_[np.zeros(4), np.arange(1, 7), np.full(4, 6)] * turn
+    path = np.c_[np.tile(loop[0, :2], (len(turns), 1)), loop[0, 2] + turns]
+    truth = between(path, path[0])
+    slam = GraphSlam(SlamConfig(), seed=0)
+    scan = PointScan(len(ANGLES))
+    headings = []
+    for k in range(len(path)):
+        scan.set_ranges(scan_at(world, path[k], ANGLES, 12.0, 0.01), ANGLES, 0.05, 12.0)
+        headings.append(slam.step(scan, path[max(k - 1, 0)], float(k)).pose[2])
+    errors = np.degrees(np.abs(wrap_angle(np.array(headings) - truth[:, 2])))
+    assert slam.front_end.rescued_matches >= 2, errors
+    assert errors.max() < 1.0, errors
+
+
+def test_a_match_that_turns_odometrys_heading_past_the_gates_own_part_is_not_a_slide():
+    """A match that moves a new reading's position beyond the gate and turns its heading by
+    12° — within the gate's share of a 60° turn, beyond its own 5° — is no slide along a
+    corridor: odometry's heading is off, and its position with it. Fitting every point
+    where the prediction fits few, it overrules odometry; moved 0.35 m with the heading
+    right, it does not (docs/method.md §6.1)."""
+    path = loop_path(80)[:12]
+    world = room_world(0, size=(12.0, 9.0), boxes=14, walls=0, keep_clear=path)
+    slam = GraphSlam(SlamConfig(), seed=0)
+    scan = PointScan(len(ANGLES))
+    for k in range(len(path)):
+        scan.set_ranges(scan_at(world, path[k], ANGLES, 12.0, 0.01), ANGLES, 0.05, 12.0)
+        slam.step(scan, path[k], float(k))
+    fe = slam.front_end
+    pose = fe.rel.copy()  # the last scan, where it is, in its keyframe's frame
+    step = np.array([0.3, 0.0, np.radians(60.0)])
+    turned = compose(pose, [0.35, 0.0, np.radians(12.0)])
+    slid = compose(pose, [0.35, 0.0, 0.0])
+    fit = fe._inliers(scan, pose)
+    assert fit > 0.9
+    assert fe._overrules(scan, pose, fit, turned, step, True)
+    assert not fe._overrules(scan, pose, fit, slid, step, True)
