@@ -242,9 +242,9 @@ class Localizer:
 
     def _confirm(self, scan, motion, news, stale, stamp, interval) -> None:
         lc = self.config.localization
-        for k in range(self.n_candidates):  # a lone candidate has no twin to merge with
-            self.trackers[k].follow(scan, motion, news, stale, gate=self.n_candidates == 1,
-                                    measure=True, interval=interval)
+        for k in range(self.n_candidates):  # each gated: docs/method.md §9, "The odometry gate"
+            self.trackers[k].follow(scan, motion, news, stale, gate=True, measure=True,
+                                    interval=interval)
         # a candidate that lost track is dropped; two that tracked into one place are one
         dropped = self._duplicates()
         self._keep(lambda t: t.poor < lc.lost_scans and id(t) not in dropped)

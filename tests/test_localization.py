@@ -152,22 +152,27 @@ def test_a_committed_pose_refuses_a_match_odometry_contradicts(saved_loop):
     assert turned > 0.25 and held == 0, (turned, held)
 
 
-def test_a_lone_candidate_refuses_a_match_odometry_contradicts(saved_loop):
-    """While confirming, a lone candidate is gated as a committed pose is (several are not:
-    they must stay free to slide together and merge)."""
+@pytest.mark.parametrize("rivals", [0, 1])
+def test_a_candidate_being_confirmed_refuses_a_match_odometry_contradicts(saved_loop, rivals):
+    """While confirming, each candidate is gated as a committed pose is, a lone one or one of
+    several: left free, the right one of several slid 0.77 m along Intel's corridor and was
+    committed there (docs/method.md §9, "The odometry gate")."""
     path, drive, scan = saved_loop
     records = [drive.next() for _ in range(3)]
+    start = records[0][0]
+    found = (Located(start, 1.0) if not rivals else
+             Ambiguous((start, compose(start, [0.0, 1.5, 0.0])), (1.0, 0.95), "scripted"))
 
     def confirm(max_held):
         localizer = SlamRuntime.localize(
             path, changes={"localization.max_held_scans": max_held}).slam
-        localizer.relocalizer = ScriptedSearch({0: Located(records[0][0], 1.0)})
+        localizer.relocalizer = ScriptedSearch({0: found})
         with slipping_matches(localizer.trackers[0].matcher, np.array([0.5, 0.0, 0.0])) as on:
             for k, (_, odometry, ranges) in enumerate(records):
                 on[0] = k == 2  # the last (the first match from the search's pose is never gated)
                 scan.set_ranges(ranges, drive.angles, 0.05, drive.max_range)
                 localizer.step(scan, odometry, 0.1 * k)
-        assert localizer.phase == CONFIRMING and localizer.n_candidates == 1
+        assert localizer.phase == CONFIRMING and localizer.n_candidates == 1 + rivals
         e = between(localizer.candidates()[0], records[-1][0])
         return math.hypot(e[0], e[1])
 
