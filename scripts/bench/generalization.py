@@ -150,6 +150,13 @@ def truth_at(stamps, truth, t):
     return truth[int(np.argmin(np.abs(stamps - t)))]
 
 
+def truth_of(stamps, truth, at) -> np.ndarray:
+    """The true poses of the scans nearest in time to each of ``at``: a trajectory's own
+    truth, one pose for each of its poses (a scan the runtime refused, one with no return
+    within range, has none)."""
+    return np.array([truth_at(stamps, truth, t) for t in at]).reshape(-1, 3)
+
+
 class TruthOracle:
     """Starts every alignment of a run at the true relative pose (the floor's "perfect scan
     matching"): it replaces the guess the front end and the loop search pass to their
@@ -228,12 +235,13 @@ def run_case(case: Case, work: Path, config: SlamConfig | None = None, floor: bo
                                 label=f"{case.name}{' floor' if oracle else ''}",
                                 before_scan=hook)
         slam = runtime.slam
-        _, est = slam.trajectory()
+        est_stamps, est = slam.trajectory()
         g = slam.graph
         node_stamps = g.stamps[: g.n_nodes]
-        node_truth = np.array([truth_at(stamps, truth, t) for t in node_stamps])
+        node_truth = truth_of(stamps, truth, node_stamps)
         scores = loop_scores(g, node_truth, slam.config, node_stamps)
-        row = {"eT": m["eT"], "eR_deg": m["eR_deg"], "ate_rmse_m": rigid_ate(est, truth),
+        row = {"eT": m["eT"], "eR_deg": m["eR_deg"],
+               "ate_rmse_m": rigid_ate(est, truth_of(stamps, truth, est_stamps)),
                **scores, "real_time_factor": m["real_time_factor"],
                "matches_recovered": m["matches_recovered"]}
         result.update({f"{label}{k}": v for k, v in row.items()})
