@@ -606,9 +606,9 @@ class LocalizationConfig(Section):
     lost_scans: int = _setting(5, "poor matches in a row that mean the pose is lost (the global "
                                "search follows)", ge=1)
     max_held_scans: int = _setting(
-        2, "matches in a row a committed pose (or a candidate being confirmed) may refuse for placing it "
-        "farther from odometry's prediction than the front end's odometry_gate allows over the "
-        "motion since the last match kept; the next is kept (0: no gate)", ge=0)
+        2, "matches in a row a committed pose (or a candidate being confirmed) may refuse for "
+        "placing it farther from odometry's prediction than the front end's odometry_gate "
+        "allows over the motion since the last match kept; the next is kept (0: no gate)", ge=0)
     merge_distance: float = _setting(
         0.2, "m: candidates that tracked this near each other are one (the worse is dropped)",
         ge=0)
