@@ -509,10 +509,10 @@ class FrontEnd:
             # (a stale reading says nothing of a turn in place since: 2 rad/s for a scan at
             # 4.7 Hz is 24°, beyond the guess window; the scans' last motion may not show it)
             window = self._turn_window if self.stale else None
-            best, best_fit = guess, -1.0
-            for prior in (compose(self.rel, self.motion), None if inside else pose):
-                if prior is None:
-                    continue
+            best, best_fit = None, -1.0
+            # around the lost match too when it pressed against its box: the optimum lay beyond
+            priors = (compose(self.rel, self.motion),) + (() if inside else (pose,))
+            for prior in priors:
                 match = self.matcher.align_scans(scan, self.reference, prior, window).pose
                 inside_box = not self.matcher.at_box_edge(match, c.window_margin)
                 if c.degeneracy_ratio > 0:  # along a degenerate axis, odometry's position
@@ -522,7 +522,7 @@ class FrontEnd:
                 fit = self._inliers(scan, match)
                 if fit > best_fit and self._overrules(scan, match, fit, guess, step, inside_box):
                     best, best_fit, degeneracy = match, fit, self.degeneracy
-            if best_fit >= 0.0:
+            if best is not None:
                 self.degeneracy = degeneracy  # (the next node's edge is weak where it slid)
                 self.rescued_matches += 1
                 return best

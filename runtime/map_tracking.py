@@ -13,8 +13,8 @@ A match that fits poorly is replaced by the prediction (the scan may be blocked 
 furniture the map does not have); ``lost_scans`` such matches in a row mean the pose is lost.
 With ``gate`` (a committed pose, or a candidate being confirmed), a match that odometry
 contradicts is refused too, as the front end refuses one, but for at most ``max_held_scans``
-scans in a row (:meth:`MapTracker._gated`). A rotating scanner's sweep is undone as the front end undoes
-it (docs/method.md §6.1, "The sweep"), given the time since the scan before.
+scans in a row (:meth:`MapTracker._gated`). A rotating scanner's sweep is undone as the
+front end undoes it (docs/method.md §6.1, "The sweep"), given the time since the scan before.
 """
 
 from __future__ import annotations

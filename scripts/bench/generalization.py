@@ -27,6 +27,7 @@ import numpy as np
 from swarmslam.runtime.config import SlamConfig, override
 from swarmslam.runtime.pose import between
 from swarmslam.runtime.pose_graph import LOOP
+from swarmslam.metrics import nearest_stamps
 from swarmslam.plots import bars, require_matplotlib
 from swarmslam.replay import replay_run
 from swarmslam.simlog import write_simlog
@@ -154,7 +155,8 @@ def truth_of(stamps, truth, at) -> np.ndarray:
     """The true poses of the scans nearest in time to each of ``at``: a trajectory's own
     truth, one pose for each of its poses (a scan the runtime refused, one with no return
     within range, has none)."""
-    return np.array([truth_at(stamps, truth, t) for t in at]).reshape(-1, 3)
+    index, _ = nearest_stamps(stamps, at)
+    return np.asarray(truth)[index].reshape(-1, 3)
 
 
 class TruthOracle:
