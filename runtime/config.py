@@ -369,6 +369,11 @@ class FrontEndConfig(Section):
     submap_nodes: int = _setting(
         3, "node scans in the keyframe reference: the newest and those just before it, placed "
         "by the graph (1: the newest alone)", ge=1, le=100)
+    drop_moved_points: bool = _setting(
+        True, "leave out of the keyframe reference the points another of its node scans saw "
+        "through (its every ray passing within track_inlier_distance + track_inlier_slope "
+        "per m of the point went on beyond it by more) and none saw a surface at: what stood "
+        "there moved, a person walking (docs/method.md §6.1)")
     degeneracy_ratio: float = _setting(
         0.12, "a translation direction the match pins less than this share of the other is "
         "degenerate (a plain corridor's axis): the prediction stands in along it; 0: off",

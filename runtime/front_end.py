@@ -120,6 +120,9 @@ class FrontEnd:
         self._submap_nodes = np.zeros(submap_nodes, np.int64)
         self._submap_poses = np.zeros((submap_nodes, 3))
         self._n_submap = 0
+        # work buffers of the moved points' test: a range image and a placement per node scan
+        self._submap_images = np.zeros((submap_nodes, config.loop_closure.bearing_bins))
+        self._submap_placed = np.zeros((submap_nodes, 4))
         # The trajectory: the node each scan was matched to, and its pose in that node's frame.
         n = config.capacity.max_scans
         self.scan_node = np.zeros(n, np.int64)
@@ -358,6 +361,12 @@ class FrontEnd:
                 self._submap_nodes[i] = first + i
             self._submap_poses[: self._n_submap] = self.graph.poses[first : node + 1]
         m = self._n_submap  # the kept poses are rows 0..m-1, the keyframe's the last
+        c = self.config.front_end
+        if c.drop_moved_points:
+            return self.nodes.place_unmoved(self._submap_poses, self._submap_nodes[:m], m - 1,
+                                            self._submap, c.track_inlier_distance,
+                                            c.track_inlier_slope, self._submap_images,
+                                            self._submap_placed)
         return self.nodes.place(self._submap_poses, self._submap_nodes[:m], m - 1,
                                 self._submap, rows=range(m))
 

@@ -8,10 +8,80 @@ covariance of each node's pose, propagated along the odometry chain, gates loop 
 
 from __future__ import annotations
 
-import numpy as np
+import math
 
-from swarmslam.runtime.pose import compose, place_points_nb
+import numpy as np
+from numba import njit
+
+from swarmslam.runtime.loop_closure import polar_image
+from swarmslam.runtime.pose import between_nb, compose, place_points_nb
 from swarmslam.runtime.scan import PointScan
+
+
+NO_EVIDENCE, SURFACE, THROUGH = 0, 1, 2  # what one scan saw of a place (_seen_by)
+
+
+@njit(cache=True)
+def _seen_by(placed, f, qx, qy, images, tolerance, slope):
+    """What scan ``f`` saw of the place ``(qx, qy)`` (in the frame ``placed`` places the scans
+    in): SURFACE there, THROUGH it (every ray of f passing within ``tolerance + slope·r`` of
+    it went on beyond it by more than that; the point's own bearing alone would call a wall
+    seen at a grazing angle seen through), or NO_EVIDENCE (no return of f at that bearing:
+    out of its view or reach; or a nearer one: the place hidden)."""
+    bins = images.shape[1]
+    dx, dy = qx - placed[f, 0], qy - placed[f, 1]  # into scan f's frame
+    ux = placed[f, 2] * dx + placed[f, 3] * dy
+    uy = -placed[f, 3] * dx + placed[f, 2] * dy
+    d = math.hypot(ux, uy)
+    b = int((math.atan2(uy, ux) + math.pi) * bins / (2 * math.pi)) % bins
+    if not min(images[f, b], images[f, (b - 1) % bins], images[f, (b + 1) % bins]) < np.inf:
+        return NO_EVIDENCE  # no return of scan f at that bearing
+    margin = tolerance + slope * d
+    half = min(int(math.atan2(margin, d) * bins / (2 * math.pi)) + 1, bins // 4)
+    seen = np.inf
+    for j in range(b - half, b + half + 1):
+        seen = min(seen, images[f, j % bins])
+    if abs(d - seen) <= margin:
+        return SURFACE
+    return THROUGH if d < seen - margin else NO_EVIDENCE
+
+
+@njit(cache=True)
+def place_unmoved_nb(poses, nodes, m, frame, points, counts, tolerance, slope, images, placed,
+                     out):
+    """The points of the scans of ``nodes[:m]`` (placed by ``poses[:m]``, row for row) in the
+    frame of ``poses[frame]``, but those that another of the scans saw through
+    (:func:`_seen_by`) and none saw a surface at: what stood there moved, a person walking
+    (docs/method.md §6.1, "Moved points"). ``images`` (a range image per scan) and ``placed``
+    (each scan's pose in the frame, its cosine and sine) are work buffers. Returns how many
+    points were written."""
+    for e in range(m):
+        polar_image(points[nodes[e]], counts[nodes[e]], images[e])
+        x, y, t = between_nb(poses[e, 0], poses[e, 1], poses[e, 2],
+                             poses[frame, 0], poses[frame, 1], poses[frame, 2])
+        placed[e, 0], placed[e, 1] = x, y
+        placed[e, 2], placed[e, 3] = math.cos(t), math.sin(t)
+    n = 0
+    for e in range(m):
+        node = nodes[e]
+        x, y, c, s = placed[e, 0], placed[e, 1], placed[e, 2], placed[e, 3]
+        for k in range(counts[node]):
+            px, py = points[node, k, 0], points[node, k, 1]
+            qx = x + c * px - s * py
+            qy = y + s * px + c * py
+            moved = False
+            for f in range(m):
+                if f == e:
+                    continue
+                seen = _seen_by(placed, f, qx, qy, images, tolerance, slope)
+                if seen == SURFACE:
+                    moved = False  # a surface another scan saw there too
+                    break
+                moved = moved or seen == THROUGH
+            if not moved:
+                out[n, 0], out[n, 1] = qx, qy
+                n += 1
+    return n
 
 
 class NodeScans:
@@ -49,6 +119,15 @@ class NodeScans:
             n = place_points_nb(poses, row, frame, self.points[other], self.counts[other],
                                 out.buffer, n)
         out.count = n
+        return out
+
+    def place_unmoved(self, poses, nodes, frame: int, out: PointScan, tolerance: float,
+                      slope: float, images, placed) -> PointScan:
+        """As :meth:`place` with ``poses`` a row per node, without the points another of the
+        scans saw through (:func:`place_unmoved_nb`); ``images`` and ``placed`` are its work
+        buffers, a row per scan."""
+        out.count = place_unmoved_nb(poses, nodes, len(nodes), frame, self.points,
+                                     self.counts, tolerance, slope, images, placed, out.buffer)
         return out
 
     def extent_points(self, poses, n_nodes: int, reach: float) -> np.ndarray:
