@@ -363,11 +363,15 @@ def _hall_with_a_wall_held_twice(config, seed):
     """A hall 3 m wide with a door every 3 m, driven straight at 0.1 m a scan with exact
     odometry; once the third node is made, the node before it is turned 4.5° in the graph
     and the keyframe's submap rebuilt: it holds both walls twice, 4.5° apart (fr-clinic's
-    halls after a node was placed off). The heading error of every later scan (°)."""
+    halls after a node was placed off). The heading error of every later scan (°). The
+    moved points' test is off: the copy's points in front of the walls the other node scans
+    saw lie in their free space, and with them left out no seed goes more than 0.25° wrong
+    even with both rules off (docs/method.md §6.1, "Moved points"). The rules tested here
+    are for the copies nothing saw through."""
     walls = [[x, y, x + 2.2, y] for y in (-1.5, 1.5) for x in np.arange(-3.0, 30.0, 3.0)]
     world = np.array(walls + [[-3.0, -1.5, -3.0, 1.5]])
     path = np.array([[0.1 * k, 0.0, 0.0] for k in range(40)])
-    slam = GraphSlam(config, seed=seed)
+    slam = GraphSlam(override(config, {"front_end.drop_moved_points": False}), seed=seed)
     fe = slam.front_end
     rng = np.random.default_rng(seed)
     scan = PointScan(len(ANGLES))
