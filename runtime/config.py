@@ -324,12 +324,13 @@ class FrontEndConfig(Section):
     odometry_gate_fit: float = _setting(
         0.1, "a match the gate refuses against a stale reading (odometry's last one again) "
         "stands when its share of points on the keyframe's surfaces exceeds odometry's "
-        "prediction's by this much: the scans overrule odometry (docs/method.md §6.1); 1: never",
+        "prediction's by this much, or when it would stand against a new reading: the scans "
+        "overrule odometry (docs/method.md §6.1); 1: by the gain never",
         ge=0, le=1)
     odometry_gate_explained: float = _setting(
-        0.45, "a match the gate refuses for its heading against a new reading stands when it "
-        "fits more than this share of the points odometry's prediction misses (docs/method.md "
-        "§6.1); 1: never", ge=0, le=1)
+        0.45, "a match the gate refuses for its heading against a reading (new, or stale "
+        "where odometry_gate_fit's gain is not met) stands when it fits more than this share "
+        "of the points odometry's prediction misses (docs/method.md §6.1); 1: never", ge=0, le=1)
     odometry_gate_distance: float = _setting(
         0.15, "m: against a new reading, the fits of a match and of odometry's prediction count "
         "the points this near a surface (plus track_inlier_slope per m of range): narrower than "

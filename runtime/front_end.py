@@ -445,12 +445,15 @@ class FrontEnd:
         (:func:`scans_overrule`) — unless it moves a new reading's position alone, its heading
         within the gate's fixed part (``odometry_gate``'s angle): that match may have slid
         along a corridor, and odometry's position errs little between scans unless its heading
-        does (docs/method.md §6.1)."""
+        does (docs/method.md §6.1). A stale reading is never held to more than a new one: a
+        match the plain gain refuses is judged as against a new reading (a turn started
+        facing a near wall: the prediction fits 0.9 of the points, so no gain above 0.1 can
+        be)."""
         c = self.config.front_end
         if not inside or fit < c.min_track_inliers:
             return False
-        if self.stale:
-            return scans_overrule(fit, self._inliers(scan, guess), True, c)
+        if self.stale and scans_overrule(fit, self._inliers(scan, guess), True, c):
+            return True
         # "alone": the heading within the gate's own part, not its share of the turn: a match
         # turning a fast turn's prediction by 20° is no slide along a corridor, and odometry's
         # position, composed along its heading, is off with it (docs/method.md §6.1)
