@@ -443,12 +443,13 @@ class FrontEnd:
         odometry's prediction ``guess`` when it is an optimum inside its search box, not one
         pressed against its edge, fits, and fits clearly better than the prediction does
         (:func:`scans_overrule`) — unless it moves a new reading's position alone, its heading
-        within the gate's fixed part (``odometry_gate``'s angle): that match may have slid
-        along a corridor, and odometry's position errs little between scans unless its heading
-        does (docs/method.md §6.1). A stale reading is never held to more than a new one: a
-        match the plain gain refuses is judged as against a new reading (a turn started
-        facing a near wall: the prediction fits 0.9 of the points, so no gain above 0.1 can
-        be)."""
+        within the gate's fixed part (``odometry_gate``'s angle), from a prediction that
+        itself tracks (fits ``min_track_inliers``): that match may have slid along a corridor,
+        and odometry's position errs little between scans unless its heading does; a
+        prediction that would count as lost is no place to slide from (docs/method.md §6.1).
+        A stale reading is never held to more than a new one: a match the plain gain refuses
+        is judged as against a new reading (a turn started facing a near wall: the prediction
+        fits 0.9 of the points, so no gain above 0.1 can be)."""
         c = self.config.front_end
         if not inside or fit < c.min_track_inliers:
             return False
@@ -458,7 +459,8 @@ class FrontEnd:
         # turning a fast turn's prediction by 20° is no slide along a corridor, and odometry's
         # position, composed along its heading, is off with it (docs/method.md §6.1)
         if (contradicts_odometry(pose, guess, step, c, heading=False)
-                and abs(float(between(pose, guess)[2])) <= c.odometry_gate[1]):
+                and abs(float(between(pose, guess)[2])) <= c.odometry_gate[1]
+                and self._inliers(scan, guess) >= c.min_track_inliers):
             return False
         # a narrower band than a lost match's tells two poses a few degrees apart
         fit, predicted = (self._inliers(scan, p, c.odometry_gate_distance) for p in (pose, guess))
