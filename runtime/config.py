@@ -332,8 +332,9 @@ class FrontEndConfig(Section):
         "where odometry_gate_fit's gain is not met) stands when it fits more than this share "
         "of the points odometry's prediction misses (docs/method.md §6.1); 1: never", ge=0, le=1)
     odometry_gate_distance: float = _setting(
-        0.15, "m: against a new reading, the fits of a match and of odometry's prediction count "
-        "the points this near a surface (plus track_inlier_slope per m of range): narrower than "
+        0.15, "m: against a new reading (or a stale one odometry_gate_fit's gain does not "
+        "settle), the fits of a match and of odometry's prediction count the points this near "
+        "a surface (plus track_inlier_slope per m of range): narrower than "
         "track_inlier_distance, which tells a lost match, it tells two poses a few degrees "
         "apart", gt=0)
     odometry_heading_weight: float = _setting(
