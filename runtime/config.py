@@ -365,6 +365,11 @@ class FrontEndConfig(Section):
         "new one took to come, predicts the translation per scan that reading showed, not "
         "its turn (false: no motion): odometry read less often than the scans (docs/method.md "
         "§6.1)")
+    periodic_odometry_ratio: float = _setting(
+        1.5, "odometry whose new readings come on average more than this many scan intervals "
+        "apart is read at its own period: each reading's lag behind the scan that brought it "
+        "is followed, and a stale reading continues the rate the last one showed for a period "
+        "(docs/method.md §6.1, \"Odometry at its own period\"); 0: off", ge=0)
     window_margin: float = _setting(
         0.05, "a match within this share of its search box's edge found no optimum inside the "
         "box: tracking is lost", ge=0, lt=1)
@@ -945,7 +950,8 @@ BASIC_FIELDS = frozenset({
 EXPERT_FIELDS = frozenset({
     "input.jump_slack", "input.turn_slack",
     "front_end.track_inlier_slope", "front_end.curvature_step", "front_end.window_margin",
-    "front_end.stale_turn_window", "front_end.stale_motion", "front_end.degenerate_information",
+    "front_end.stale_turn_window", "front_end.stale_motion", "front_end.periodic_odometry_ratio",
+    "front_end.degenerate_information",
     "front_end.odometry_gate_share", "front_end.odometry_gate_fit",
     "front_end.odometry_gate_explained", "front_end.odometry_gate_distance",
     "front_end.odometry_heading_weight", "front_end.odometry_heading_sigma",

@@ -137,7 +137,8 @@ class FrontEnd:
         self.keyframe = -1
         self.rel = np.zeros(3)  # the current pose in the keyframe's frame
         self.motion = np.zeros(3)  # last motion between scans, for a scan-only prediction
-        self.readings = OdometryReadings(config.front_end.stale_motion)
+        self.readings = OdometryReadings(config.front_end.stale_motion,
+                                         config.front_end.periodic_odometry_ratio)
         # The pose (in the keyframe's frame) of the scan that brought odometry's last new
         # reading: its motion is predicted from there (docs/method.md §6.1).
         self.odometry_rel = np.zeros(3)
@@ -169,7 +170,7 @@ class FrontEnd:
         if self.keyframe < 0:
             self._start(scan, odometry, stamp)
             return Tracking(self.graph.poses[0].copy(), True, 0, 0.0)
-        base, step, news = self._prediction(odometry)
+        base, step, news = self._prediction(odometry, stamp)
         self.stale = odometry is not None and not news  # the same reading as before
         guess = compose(base, step)
         # Alg. 5, each point turned to the stamp's heading (the sweep, docs/method.md §6.1)
@@ -342,7 +343,7 @@ class FrontEnd:
         self.rebuild_reference()
         self._reading = NO_READING
         if odometry is not None:
-            self._note_reading(odometry, *self.readings.read(odometry))  # odometry starts here
+            self._note_reading(odometry, *self.readings.read(odometry, stamp))  # odometry starts here
             self.odometry_rel[:] = 0.0
         self._record(stamp)
         self._remember(scan)
@@ -545,13 +546,13 @@ class FrontEnd:
         wide = self.matcher.align_scans(scan, self.reference, None).pose
         return max((pose, wide), key=lambda p: self._inliers(scan, p))
 
-    def _prediction(self, odometry):
+    def _prediction(self, odometry, stamp):
         """Where the scan's predicted pose starts (in the keyframe's frame), the motion added
         to it, and whether odometry brought a new reading: a new reading's motion from the
         scan that brought the last new one, a stale one's from the last scan
         (:mod:`swarmslam.runtime.odometry_readings`). Without odometry: the last motion the
         scans showed, continued (docs/method.md §6.1)."""
-        step, news, first = self.readings.read(odometry)
+        step, news, first = self.readings.read(odometry, stamp)
         self._note_reading(odometry, step, news, first)
         if step is None:  # scans only, or a reading the inbox dropped
             return self.rel, self.motion, False
@@ -600,7 +601,7 @@ class FrontEnd:
                 "odometry_rel": self.odometry_rel.copy(),
                 "stale_scans": self.readings.stale_scans,
                 "reading_scans": self.readings.reading_scans,
-                "reading_step": self.readings.reading_step.copy(),
+                "reading_step": self.readings.reading_step.copy(), **self.readings.state(),
                 "last_stamp": self.last_stamp, "last_interval": self.last_interval,
                 "previous_points": self._previous.points.copy()}
 
@@ -647,6 +648,7 @@ class FrontEnd:
                 readings.stale_scans, readings.reading_scans) < 0:
             raise ValueError("the stale readings' motion is not one this front end keeps")
         readings.reading_step[:] = step
+        readings.restore(state)
         # (saved before the sweep was undistorted: the trajectory's last stamp; no motion's
         # interval, so the next scan's first pass leaves its sweep as it came)
         self.last_stamp = float(state.get("last_stamp", self.scan_stamp[k - 1] if k else math.nan))

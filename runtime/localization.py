@@ -76,7 +76,8 @@ class Localizer:
         self.stamps = np.zeros(n)
         self.poses = np.full((n, 3), np.nan)  # NaN: no committed pose at that scan
         self.n_scans = 0
-        self.readings = OdometryReadings(config.front_end.stale_motion)
+        self.readings = OdometryReadings(config.front_end.stale_motion,
+                                         config.front_end.periodic_odometry_ratio)
         self.last_stamp = math.nan  # the scan before's, for the sweep (docs/method.md §6.1)
         self.counts = {"searches": 0, "ambiguous_answers": 0, "empty_answers": 0,
                        "committed": 0, "lost": 0, "poor_matches": 0, "tracked_scans": 0,
@@ -115,7 +116,7 @@ class Localizer:
              budget_end: float | None = None) -> StepResult:
         """One scan in the current phase (see module doc); ``clock`` times the tracking."""
         start = clock() if clock is not None else 0.0
-        motion, news = self._odometry_step(odometry)
+        motion, news = self._odometry_step(odometry, stamp)
         stale = motion is not None and not news  # odometry's last reading again
         interval = stamp - self.last_stamp if stamp > self.last_stamp else 0.0  # (NaN: 0)
         self.last_stamp = stamp
@@ -322,13 +323,13 @@ class Localizer:
         self.trackers[0].start(pose)
         self._commit(0)
 
-    def _odometry_step(self, odometry):
+    def _odometry_step(self, odometry, stamp):
         """Odometry's motion at this scan and whether it is a new reading, or (None, False)
         without one (the trackers repeat their last motion; a reading the inbox dropped: the
         next starts odometry afresh, docs/runtime.md §7). A new reading's motion is added to
         the pose of the scan that brought the last new one, a stale one's to the last scan's
         (:mod:`swarmslam.runtime.odometry_readings`)."""
-        step, news, _ = self.readings.read(odometry)
+        step, news, _ = self.readings.read(odometry, stamp)
         return step, news
 
     def _record(self, stamp) -> None:
