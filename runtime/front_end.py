@@ -251,7 +251,7 @@ class FrontEnd:
         self.rel[:], self.motion[:] = 0.0, 0.0
         self.weak, self.readings.have = False, False
         self.last_stamp, self.last_interval = stamp, math.nan  # (not the saved session's)
-        self._prediction(odometry)  # the new run's odometry starts here
+        self._prediction(odometry, stamp)  # the new run's odometry starts here
         self.rebuild_reference()
         self._record(stamp)
         self._remember(scan)

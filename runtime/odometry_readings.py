@@ -1,7 +1,7 @@
 """What each scan's odometry reading predicts (docs/method.md §6.1, "A stale reading").
 
-    readings = OdometryReadings(stale_motion=True)
-    step, news, first = readings.read(odometry)   # odometry: the reading at this scan, or None
+    readings = OdometryReadings(stale_motion=True, periodic_ratio=1.5)
+    step, news, first = readings.read(odometry, stamp)  # the reading at a scan (or None)
 
 Odometry is often read less often than the scans: the same reading comes with several scans,
 then a new one catches up at once. A new reading (``news``) predicts odometry's motion since
