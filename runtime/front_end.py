@@ -592,16 +592,12 @@ class FrontEnd:
                 "scan_reading": self.scan_reading[:k].copy(),
                 "scan_odometry": self.scan_odometry[:k].copy(),
                 "initial_pose": self.initial_pose.copy(), "rel": self.rel.copy(),
-                "motion": self.motion.copy(), "last_odometry": self.readings.last.copy(),
-                "keyframe": self.keyframe, "have_odometry": self.readings.have,
+                "motion": self.motion.copy(), "keyframe": self.keyframe,
                 "weak": self.weak, "lost_matches": self.lost_matches,
                 "degenerate_matches": self.degenerate_matches, "status": self.status,
                 "submap_nodes": self._submap_nodes[: self._n_submap].copy(),
                 "submap_poses": self._submap_poses[: self._n_submap].copy(),
-                "odometry_rel": self.odometry_rel.copy(),
-                "stale_scans": self.readings.stale_scans,
-                "reading_scans": self.readings.reading_scans,
-                "reading_step": self.readings.reading_step.copy(), **self.readings.state(),
+                "odometry_rel": self.odometry_rel.copy(), **self.readings.state(),
                 "last_stamp": self.last_stamp, "last_interval": self.last_interval,
                 "previous_points": self._previous.points.copy()}
 
@@ -632,23 +628,13 @@ class FrontEnd:
         self.n_scans = k
         self.initial_pose[:] = state["initial_pose"]
         self.rel[:], self.motion[:] = state["rel"], state["motion"]
-        readings = self.readings
-        readings.last[:] = state["last_odometry"]
-        readings.have, self.weak = bool(state["have_odometry"]), bool(state["weak"])
+        self.readings.restore(state)
+        self.weak = bool(state["weak"])
         self.lost_matches, self.status = int(state["lost_matches"]), str(state["status"])
         self.degenerate_matches = int(state["degenerate_matches"])
         self.keyframe = int(state["keyframe"])
         # a session saved before stale readings were told apart predicts from its last scan
         self.odometry_rel[:] = state.get("odometry_rel", self.rel)
-        # (saved before stale readings continued a motion: none continued until a new reading)
-        readings.stale_scans = int(state.get("stale_scans", 0))
-        readings.reading_scans = int(state.get("reading_scans", 0))
-        step = np.asarray(state.get("reading_step", np.zeros(3)), np.float64)
-        if step.shape != (3,) or not np.all(np.isfinite(step)) or min(
-                readings.stale_scans, readings.reading_scans) < 0:
-            raise ValueError("the stale readings' motion is not one this front end keeps")
-        readings.reading_step[:] = step
-        readings.restore(state)
         # (saved before the sweep was undistorted: the trajectory's last stamp; no motion's
         # interval, so the next scan's first pass leaves its sweep as it came)
         self.last_stamp = float(state.get("last_stamp", self.scan_stamp[k - 1] if k else math.nan))

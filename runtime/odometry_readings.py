@@ -113,8 +113,8 @@ class OdometryReadings:
                 self.rate[:2] = delta[:2] * (self.periods / self.period_time)
         self.arrival = stamp
         self.last[:] = odometry  # (a copy: callers may reuse their array)
-        self.reading_scans = self.stale_scans + 1
-        self.reading_step[:2] = delta[:2] / self.reading_scans
+        self.reading_scans = scans
+        self.reading_step[:2] = delta[:2] / scans
         self.stale_scans = 0
         self.have = True
         return delta, True, first
@@ -132,12 +132,26 @@ class OdometryReadings:
               "periods", "fewest", "lag")
 
     def state(self) -> dict:
-        """What a saved session keeps of the period (the rest is the front end's to save)."""
-        return {**{f"readings_{k}": getattr(self, k) for k in self._STATE},
+        """The readings as a saved session keeps them (the front end's)."""
+        return {"last_odometry": self.last.copy(), "have_odometry": self.have,
+                "stale_scans": self.stale_scans, "reading_scans": self.reading_scans,
+                "reading_step": self.reading_step.copy(),
+                **{f"readings_{k}": getattr(self, k) for k in self._STATE},
                 "readings_rate": self.rate.copy()}
 
     def restore(self, state: dict) -> None:
-        """:meth:`state`'s values (a session saved before the period was kept: none known)."""
+        """:meth:`state`'s values."""
+        self.last[:] = state["last_odometry"]
+        self.have = bool(state["have_odometry"])
+        # (saved before stale readings continued a motion: none continued until a new reading)
+        self.stale_scans = int(state.get("stale_scans", 0))
+        self.reading_scans = int(state.get("reading_scans", 0))
+        step = np.asarray(state.get("reading_step", np.zeros(3)), np.float64)
+        if step.shape != (3,) or not np.all(np.isfinite(step)) or min(
+                self.stale_scans, self.reading_scans) < 0:
+            raise ValueError("the stale readings' motion is not one this front end keeps")
+        self.reading_step[:] = step
+        # (saved before the period was kept: none known)
         for k in self._STATE:
             default = math.nan if k in ("stamp", "arrival") else 0
             setattr(self, k, type(getattr(self, k))(state.get(f"readings_{k}", default)))

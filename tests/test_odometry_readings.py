@@ -60,7 +60,7 @@ def _drive_with_periodic_odometry(periodic_ratio, period=0.8, scan_hz=4.7, speed
         if first:
             x[k] = speed * t
         elif news:
-            x[k], arrival = x[arrival] + step[0], k
+            x[k] = x[arrival] + step[0]
         else:
             x[k] = x[k - 1] + step[0]
         arrival = k if news else arrival
@@ -93,3 +93,22 @@ def test_odometry_read_with_the_scans_is_not_taken_as_periodic():
     for k in range(50):
         readings.read([0.1 * (k // 4), 0.0, 0.0], k / 10.0)
     assert abs(readings.period() - 0.4) < 1e-9
+
+
+def test_a_restored_session_reads_on_as_the_running_one_would():
+    """The period, the lag and the rate are saved with the readings: a session saved in the
+    middle of periodic odometry predicts the next steps to the bit."""
+    def reading(k):
+        return [0.5 * 0.8 * np.floor(k / 4.7 / 0.8), 0.0, 0.0], k / 4.7
+
+    running = OdometryReadings(stale_motion=True, periodic_ratio=1.5)
+    for k in range(30):
+        running.read(*reading(k))
+    assert running.period() > 0
+    restored = OdometryReadings(stale_motion=True, periodic_ratio=1.5)
+    restored.restore(running.state())
+    for k in range(30, 60):
+        a, b = running.read(*reading(k)), restored.read(*reading(k))
+        assert a[1:] == b[1:] and np.array_equal(a[0], b[0])
+    assert OdometryReadings(True, 1.5).restore({"last_odometry": np.zeros(3),
+                                                "have_odometry": False}) is None  # an old one
