@@ -74,7 +74,7 @@ class BackEnd:
         self._saved_poses = np.zeros((graph.max_nodes, 3))
         self._image = np.zeros(lc.bearing_bins)
         self._state = np.zeros(points, np.int64)
-        self._seen = np.zeros(3, np.int64)
+        self._seen = np.zeros(2, np.int64)
         self._window = np.zeros(3)
         self._wide_window = np.asarray(lc.wide_refine_window, dtype=np.float64)
         self.revision = 0  # bumped whenever a kept closure moved the optimised poses
@@ -358,12 +358,7 @@ class BackEnd:
                    candidate, scan.buffer, scan.count, float(pose[0]), float(pose[1]),
                    float(pose[2]), c.inlier_distance, c.inlier_slope, self._image, self._state,
                    seen)
-        on, through, behind = int(seen[0]), int(seen[1]), int(seen[2])
-        # a scan that sees the submap's surfaces from their far side is on the other side
-        # of them: an L of walls fits the other L of a corridor's corner (docs/method.md §5)
-        if behind > c.max_behind * (on + behind):
-            loops.rejected_match += 1
-            return None
+        on, through = int(seen[0]), int(seen[1])
         if inliers >= c.min_inliers or (on >= c.min_overlap * scan.count
                                         and through <= c.max_violations * (on + through)):
             return pose

@@ -450,9 +450,6 @@ class LoopClosureConfig(Section):
     max_violations: float = _setting(
         0.03, "largest share of the points the submap's scans saw that may lie in space they "
         "saw through", ge=0, le=1)
-    max_behind: float = _setting(
-        0.25, "largest share of the new scan's points on the submap's seen surfaces that may "
-        "lie on one the scan would see from its far side (1: this test off)", ge=0, le=1)
     inlier_distance: float = _setting(0.2, "m: a point this near a seen surface is on it", gt=0)
     inlier_slope: float = _setting(0.01, "m per m of range added to inlier_distance (beams "
                                    "spread and graze)", ge=0)
@@ -969,7 +966,7 @@ EXPERT_FIELDS = frozenset({
     "matcher.swarm.stall_tol",
     "matcher.swarm.target_value", "matcher.swarm.params",
     "loop_closure.bearing_bins", "loop_closure.position_floor", "loop_closure.window_margin",
-    "loop_closure.max_violations", "loop_closure.max_behind", "loop_closure.inlier_slope",
+    "loop_closure.max_violations", "loop_closure.inlier_slope",
     "loop_closure.degenerate_information", "loop_closure.wide_min_gap",
     "loop_closure.wide_spacing", "loop_closure.wide_drift", "loop_closure.wide_max_radius",
     "loop_closure.wide_turn_drift",

@@ -12,8 +12,7 @@ the consistency test that replaces the literal "error did not grow" rule.
    centred on the graph's current estimate, its half-widths from :meth:`LoopCloser.window`),
    refuse a match at the box's edge, and accept it only if enough of its points lie on the
    submap's surfaces (the inlier fraction) or :func:`visibility` says the submap's scans saw
-   enough of them on surfaces and few in their free space, and few on a surface seen from its
-   far side (λ itself is no test here, since
+   enough of them on surfaces and few in their free space (λ itself is no test here, since
    scans metres apart always score worse than the keyframe pairs the rejection threshold was
    learnt on). Add the edge, re-optimise, and keep it only if its own
    error ``eᵀΩe`` stays under the χ²₃ gate (7.81) and the total error rose by no more than a
@@ -98,16 +97,13 @@ def visibility(points, counts, poses, members, n_members, frame, scan, n, x, y, 
     """How the scans of nodes ``members[:n_members]`` saw the places where ``scan`` (at
     ``(x, y, t)`` in node ``frame``'s frame) puts its points: ``out[0]`` points on a surface
     one of them saw (within ``tolerance + slope·r``), ``out[1]`` points in space one of them
-    saw through and none saw a surface at, ``out[2]`` points on a surface that the scan would
-    see from behind, from the other side of it than the node scans that saw it — the last two
-    evidence against the alignment. Points no scan saw (behind what they saw, or outside their
-    view) count in none (docs/method.md §5, step 3)."""
+    saw through and none saw a surface at — evidence against the alignment. Points no scan
+    saw (behind what they saw, or outside their view) count in neither (docs/method.md §5)."""
     for k in range(n):
         state[k] = 0
     cf, sf = math.cos(poses[frame, 2]), math.sin(poses[frame, 2])
     ct, st = math.cos(t), math.sin(t)
     bins = image.shape[0]
-    width = 2 * math.pi / bins
     for e in range(n_members):
         m = members[e]
         polar_image(points[m], counts[m], image)
@@ -116,8 +112,6 @@ def visibility(points, counts, poses, members, n_members, frame, scan, n, x, y, 
         mx, my = cf * dx + sf * dy, -sf * dx + cf * dy
         mt = poses[m, 2] - poses[frame, 2]
         cm, sm = math.cos(mt), math.sin(mt)
-        # the scan's sensor in node m's frame
-        sx, sy = cm * (x - mx) + sm * (y - my), -sm * (x - mx) + cm * (y - my)
         for k in range(n):
             if state[k] == 1:
                 continue
@@ -132,41 +126,15 @@ def visibility(points, counts, poses, members, n_members, frame, scan, n, x, y, 
             margin = tolerance + slope * r
             if abs(r - seen) <= margin:
                 state[k] = 1
-                if _behind(image, b, bins, width, px, py, sx, sy, margin):
-                    state[k] = 3  # unless another node scan saw it from the scan's side
-            elif r < seen - margin and state[k] != 3:
+            elif r < seen - margin:
                 state[k] = 2
     out[0] = 0
     out[1] = 0
-    out[2] = 0
     for k in range(n):
         if state[k] == 1:
             out[0] += 1
         elif state[k] == 2:
             out[1] += 1
-        elif state[k] == 3:
-            out[2] += 1
-
-
-@njit(cache=True)
-def _behind(image, b, bins, width, px, py, sx, sy, margin):
-    """Whether a sensor at ``(sx, sy)`` lies clearly (beyond ``margin``) on the other side of
-    the surface node m saw around bin ``b`` from the side node m (the origin) saw it from: a
-    wall seen from its far side is another face, though it lies in the same place. The surface
-    runs between the ranges of the bins either side; unknown (no return, or a depth edge
-    between them) is not behind."""
-    r0, r1 = image[(b - 1) % bins], image[(b + 1) % bins]
-    if not (r0 < np.inf and r1 < np.inf) or abs(r1 - r0) > 4.0 * margin:
-        return False
-    a0, a1 = (b - 0.5) * width - math.pi, (b + 1.5) * width - math.pi
-    tx, ty = r1 * math.cos(a1) - r0 * math.cos(a0), r1 * math.sin(a1) - r0 * math.sin(a0)
-    norm = math.hypot(tx, ty)
-    if norm <= 0.0:
-        return False
-    nx, ny = -ty / norm, tx / norm
-    node_side = -(nx * px + ny * py)  # the origin's distance from the surface, signed
-    sensor_side = nx * (sx - px) + ny * (sy - py)
-    return node_side * sensor_side < 0.0 and abs(sensor_side) > margin
 
 
 class LoopCloser:
