@@ -103,6 +103,13 @@ class BackEnd:
         # candidate, the node and its measurement; a later one that agrees with it is judged
         # by its own error (docs/method.md §5, step 4).
         self.rise_refused = np.array([-1.0, -1.0, 0.0, 0.0, 0.0])
+        # The last loop refused for its own error (the graph could not absorb it), as above,
+        # and its information: one that agrees with it may take the place of the kept loops
+        # the two strain most (docs/method.md §5, step 4).
+        self.strained = np.array([-1.0, -1.0, 0.0, 0.0, 0.0])
+        self.strained_info = np.zeros((3, 3))
+        self._chi2_before = np.zeros(graph.max_edges)
+        self._given_up = np.zeros(max(lc.max_given_up, 1), np.int64)
         self.wide_from = 0  # the first node a wide search may run at (wide_spacing after one
         # that fitted its scan nowhere)
         self.cost = np.zeros(len(SLICE_NAMES))  # expected seconds per slice kind (decaying max)
@@ -396,7 +403,15 @@ class BackEnd:
                                else (False, False))
         if not (absorbed and (contained or self.widened)):
             # (the graph's own poses: the trial moved none, the front end only adds nodes)
-            if not (absorbed and self._agrees(candidate, node, z)):
+            if not (absorbed and self._agrees(self.rise_refused, candidate, node, z)):
+                if settled and not absorbed and not self.widened:
+                    if self._agrees(self.strained, candidate, node, z):
+                        kept = yield from self._give_up_steps(candidate, node, z)
+                        if kept:
+                            return True
+                    self.strained[:2] = candidate, node
+                    self.strained[2:] = z
+                    self.strained_info[:] = self.z_info
                 loops.rejected_consistency += 1
                 if absorbed and not self.widened:  # refused for the rise alone
                     self.rise_refused[:2] = candidate, node
@@ -414,23 +429,90 @@ class BackEnd:
             self.last_closure = node
         return True
 
-    def _agrees(self, candidate: int, node: int, z) -> bool:
-        """Whether the loop ``candidate`` → ``node`` (measurement ``z``) agrees with the last
-        one refused for the rise of the total alone: made from a node at most
+    def _agrees(self, refused, candidate: int, node: int, z) -> bool:
+        """Whether the loop ``candidate`` → ``node`` (measurement ``z``) agrees with one
+        refused before (``refused``: its candidate, node and measurement; the last refused
+        for the rise of the total alone, or for its own error): made from a node at most
         ``agreement_nodes`` before ``node``, and placing ``node`` within
         ``agreement_distance`` and ``agreement_angle`` of where this one does, through the
         graph's short chains between the two nodes and between the two candidates. Two scans
         matched apart that put the robot in the same place of the old map are evidence that
-        the drift the rise measures is real (docs/method.md §5, step 4)."""
+        the drift the rise measures is real, or that a kept loop the two contradict is not
+        (docs/method.md §5, step 4)."""
         c = self.loops.config
-        old, was = int(self.rise_refused[0]), int(self.rise_refused[1])
+        old, was = int(refused[0]), int(refused[1])
         if old < 0 or self.widened or not 0 < node - was <= c.agreement_nodes:
             return False
         p = self.graph.poses
-        there = compose(compose(p[old], self.rise_refused[2:]), between(p[node], p[was]))
+        there = compose(compose(p[old], refused[2:]), between(p[node], p[was]))
         here = compose(p[candidate], z)
         return bool(math.hypot(here[0] - there[0], here[1] - there[1]) <= c.agreement_distance
                     and abs(wrap_angle(here[2] - there[2])) <= c.agreement_angle)
+
+    def _give_up_steps(self, candidate: int, node: int, z):
+        """Two loops the graph could not absorb, the last one refused so (:attr:`strained`)
+        and ``candidate`` → ``node`` which agrees with it, tried together (CLOSE slices, a
+        generator returning whether both were kept): the kept loop whose error the two raise
+        the most (by more than ``min_strain``) is given up and the trial optimised again, up
+        to ``max_given_up`` loops, until the graph absorbs both and raises no kept loop's error
+        by more than ``chi2_gate``; both are kept when the rest of the graph's total rose by
+        at most a consistent constraint's ``total_gate`` each. One wrong closure kept, a
+        corner's L matched onto the other L of a corridor's corner, otherwise refuses every
+        right closure of the place after it: the map holds the corridor twice
+        (docs/method.md §5, step 4)."""
+        g, trial, loops = self.graph, self.trial, self.loops
+        c = loops.config
+        if c.max_given_up <= 0 or g.n_edges + 2 > g.max_edges:
+            return False
+        n, m = g.n_nodes, g.n_edges
+        before = self._chi2_before[:m]
+        before[:] = g.edge_chi2()
+        total_before = float(np.sum(before))
+        trial.copy_from(g)
+        old = self.strained
+        first = trial.add_edge(int(old[0]), int(old[1]), old[2:], self.strained_info, LOOP)
+        edge = trial.add_edge(candidate, node, z, self.z_info, LOOP)
+        count = 0
+        while True:
+            try:
+                settled = (yield from self.optimizer.steps(exempt=edge)).converged
+            except FactorCapacityError as exc:
+                self.status = f"capacity reached: {exc}"
+                return False
+            if not settled:
+                return False
+            chi2 = trial.edge_chi2()
+            strained, strain = -1, c.min_strain
+            for k in range(m):  # the kept loop the two strain most (one given up has no Ω)
+                if (trial.kind[k] == LOOP and trial.info[k, 2, 2] > 0.0
+                        and chi2[k] - before[k] > strain):
+                    strained, strain = k, float(chi2[k] - before[k])
+            if (chi2[first] <= c.chi2_gate and chi2[edge] <= c.chi2_gate
+                    and (strained < 0 or strain <= c.chi2_gate)):
+                break
+            if strained < 0 or count == c.max_given_up:
+                return False
+            trial.info[strained] = 0.0
+            self._given_up[count] = strained
+            count += 1
+        given = self._given_up[:count]
+        rest = total_before
+        for k in given:
+            rest -= float(before[k])
+        if count == 0 or trial.chi2() - rest > 2.0 * c.total_gate or self.edges_full():
+            return False
+        self._take_trial_poses(n, m)
+        g.remove_edges(given)
+        g.add_edge(int(old[0]), int(old[1]), old[2:], self.strained_info, LOOP)
+        g.add_edge(candidate, node, z, self.z_info, LOOP)
+        loops.accepted += 2
+        loops.given_up += count
+        self.revision += 1
+        self.rise_refused[:2] = -1.0
+        self.strained[:2] = -1.0
+        if node - candidate >= c.wide_min_gap:
+            self.last_closure = node
+        return True
 
     def _take_trial_poses(self, n: int, m: int) -> None:
         """The trial's optimised poses for the graph's first ``n`` nodes; each node the front
@@ -472,6 +554,8 @@ class BackEnd:
             "dropped": self.dropped, "deferred": self.deferred, "forced": self.forced,
             "revision": self.revision, "status": self.status,
             "rise_refused": self.rise_refused.copy(), "agreed": self.loops.agreed,
+            "strained": self.strained.copy(), "strained_info": self.strained_info.copy(),
+            "given_up": self.loops.given_up,
         }
 
     def restore(self, state: dict) -> None:
@@ -523,6 +607,16 @@ class BackEnd:
             raise ValueError("the loop refused for its rise refers to nodes that do not exist")
         self.rise_refused[:] = refused
         self.loops.agreed = int(state.get("agreed", 0))
+        # (saved before a strained loop was kept: none)
+        strained = np.asarray(state.get("strained", [-1.0, -1.0, 0.0, 0.0, 0.0]), np.float64)
+        info = np.asarray(state.get("strained_info", np.zeros((3, 3))), np.float64)
+        if (strained.shape != (5,) or info.shape != (3, 3) or not np.all(np.isfinite(strained))
+                or not np.all(np.isfinite(info)) or not -1 <= strained[0] < n
+                or not -1 <= strained[1] < n):
+            raise ValueError("the loop refused for its own error refers to nodes that do not "
+                             "exist")
+        self.strained[:], self.strained_info[:] = strained, info
+        self.loops.given_up = int(state.get("given_up", 0))
 
 
 def _advance(steps, sliced: bool):

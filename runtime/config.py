@@ -442,6 +442,13 @@ class LoopClosureConfig(Section):
         0.1, "m: how near the two loops of agreement_nodes must place the node", gt=0)
     agreement_angle: float = _setting(
         0.02, "rad: how near in heading the two loops of agreement_nodes must place it", gt=0)
+    max_given_up: int = _setting(
+        3, "two loops in a row that the graph cannot absorb, and that agree as agreement_nodes "
+        "says, are kept by giving up at most this many kept loops, those whose error the two "
+        "raise the most (docs/method.md §5, step 4); 0: never", ge=0)
+    min_strain: float = _setting(
+        1.0, "a kept loop is given up for two that agree only when they raise its eᵀΩe by more "
+        "than this", gt=0)
     min_inliers: float = _setting(0.8, "share of points on the submap's surfaces that accepts a "
                                   "loop match (strict: a wrong loop bends the map)", ge=0, le=1)
     min_overlap: float = _setting(
@@ -958,7 +965,7 @@ EXPERT_FIELDS = frozenset({
     "front_end.previous_scan_gain", "front_end.previous_scan_fit",
     "front_end.between_significance", "front_end.between_gate", "front_end.between_min_pairs",
     "loop_closure.agreement_nodes", "loop_closure.agreement_distance",
-    "loop_closure.agreement_angle",
+    "loop_closure.agreement_angle", "loop_closure.max_given_up", "loop_closure.min_strain",
     "matcher.surface_bend", "matcher.surface_gap_ratio", "matcher.coarse_radius",
     "matcher.polish_step", "matcher.polish_halvings", "matcher.polish_evaluations",
     "matcher.occupied_radius", "matcher.robot_diameter",

@@ -149,6 +149,7 @@ class LoopCloser:
         self.rejected_match = 0
         self.rejected_consistency = 0
         self.agreed = 0  # loops kept past the rise test by agreeing with one refused by it
+        self.given_up = 0  # kept loops given up for two later ones that agree (back end)
 
     def candidates(self, graph, node_cov, node: int) -> list[int]:
         """Steps 1–2: nearby nodes inside the 95% ellipse of the relative position."""

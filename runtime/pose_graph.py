@@ -121,6 +121,23 @@ class PoseGraph:
         self.n_edges -= 1
         self.revision += 1
 
+    def remove_edges(self, edges) -> None:
+        """Take out the edges with indices ``edges`` (distinct), the others keeping their
+        order and moving down (no allocation)."""
+        m = self.n_edges
+        if any(not 0 <= int(k) < m for k in edges):
+            raise ValueError(f"no edge {list(edges)} among {m}")
+        kept = 0
+        for k in range(m):
+            if any(int(e) == k for e in edges):
+                continue
+            if kept != k:
+                self.ij[kept], self.z[kept] = self.ij[k], self.z[k]
+                self.info[kept], self.kind[kept] = self.info[k], self.kind[k]
+            kept += 1
+        self.n_edges = kept
+        self.revision += 1
+
     def copy_from(self, other: "PoseGraph") -> None:
         """Take ``other``'s nodes and edges into this graph's buffers (no allocation; the
         capacities must hold them). The revision moves on from this graph's own, so that a

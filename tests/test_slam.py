@@ -8,6 +8,7 @@ import pytest
 
 from swarmslam.runtime.config import SlamConfig, override
 from swarmslam.runtime.front_end import _unbeatable, scans_overrule
+from swarmslam.runtime.graph_optimizer import GaussNewton
 from swarmslam.runtime.pose import between, compose, wrap_angle
 from swarmslam.runtime.pose_graph import LOOP
 from swarmslam.runtime.scan import PointScan
@@ -542,6 +543,53 @@ def test_a_loop_refused_for_the_drift_it_repairs_is_kept_when_the_next_agrees(mo
     slam, back, z = _drifted_chain(override(SlamConfig(), {"loop_closure.agreement_nodes": 0}))
     back.close_loop(0, n - 2, z)
     assert not back.close_loop(1, n - 1, z)  # without the rule, refused as before
+
+
+def _chain_with_wrong_loops(config, n=60, step=0.5, turn=0.003):
+    """A GraphSlam whose graph is a chain of ``n`` nodes along a straight line, its odometry
+    turning ``turn`` rad a step (2.2 m to the side after 55 nodes), and loops from nodes 0, 1
+    and 2 to nodes 50, 51 and 52 kept where the drifted chain put them (a corner's L matched
+    onto the other L, agreeing with the drift)."""
+    slam = GraphSlam(config, seed=0)
+    g, back = slam.graph, slam.back_end
+    info = slam.front_end.information()
+    z = np.array([step, 0.0, turn])
+    g.add_node([0.0, 0.0, 0.0], 0.0)
+    for k in range(1, n):
+        g.add_node(compose(g.poses[k - 1], z), float(k))
+        g.add_edge(k - 1, k, z, info)
+    for k in range(3):
+        g.add_edge(k, 50 + k, between(g.poses[50 + k], g.poses[k]),
+                   slam.front_end.information(loop=True), LOOP)
+    back.z_info[:] = slam.front_end.information(loop=True)
+    return slam, back
+
+
+@pytest.mark.parametrize("given_up", [3, 0])
+def test_two_loops_that_agree_give_up_the_kept_loops_they_contradict(given_up):
+    """Wrong loops kept (nodes 0–2 → 50–52, where drift put them) make the graph refuse the
+    right loops of the place after them for their own error: the map holds the place twice.
+    Two in a row that agree give up the kept loops they strain (at most ``max_given_up``) and
+    are kept (docs/method.md §5, step 4)."""
+    config = override(SlamConfig(), {"loop_closure.max_given_up": given_up})
+    slam, back = _chain_with_wrong_loops(config)
+    g, loops, z = slam.graph, back.loops, np.array([51 * 0.5, 0.0, 0.0])
+    bent, edges = abs(g.poses[55, 1]), g.n_edges
+    assert bent > 2.0  # the drift the wrong loops hold
+    assert not back.close_loop(4, 55, z)  # right, refused: the graph cannot absorb it
+    assert back.strained[1] == 55 and loops.rejected_consistency == 1
+    kept = back.close_loop(5, 56, z)  # the next agrees
+    assert kept is (given_up > 0) and loops.agreed == 0
+    wrong = {(0, 50), (1, 51), (2, 52)}
+    held = {tuple(int(v) for v in g.ij[k]) for k in range(g.n_edges) if g.kind[k] == LOOP}
+    if kept:
+        assert loops.given_up == 3 and held == {(4, 55), (5, 56)}
+        assert g.n_edges == edges - 3 + 2 and abs(g.poses[55, 1]) < 0.25 * bent
+        restored = GraphSlam(config, seed=0)
+        restored.restore(slam.state())
+        assert restored.back_end.loops.given_up == 3 and restored.graph.n_edges == g.n_edges
+    else:
+        assert held == wrong and g.n_edges == edges and abs(g.poses[55, 1]) == bent
 
 
 def test_a_match_counted_until_it_cannot_be_disowned_gets_the_verdict_of_full_counts():
