@@ -456,7 +456,8 @@ class BackEnd:
         the most (by more than ``min_strain``) is given up and the trial optimised again, up
         to ``max_given_up`` loops, until the graph absorbs both and raises no kept loop's error
         by more than ``chi2_gate``; both are kept when the rest of the graph's total rose by
-        at most a consistent constraint's ``total_gate`` each. One wrong closure kept, a
+        at most a consistent constraint's ``total_gate`` each (two the graph absorbs with none
+        given up are refused, as each was alone). One wrong closure kept, a
         corner's L matched onto the other L of a corridor's corner, otherwise refuses every
         right closure of the place after it: the map holds the corridor twice
         (docs/method.md §5, step 4)."""

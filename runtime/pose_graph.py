@@ -123,7 +123,7 @@ class PoseGraph:
 
     def remove_edges(self, edges) -> None:
         """Take out the edges with indices ``edges`` (distinct), the others keeping their
-        order and moving down (no allocation)."""
+        order and moving down in place (no array allocated)."""
         m = self.n_edges
         if any(not 0 <= int(k) < m for k in edges):
             raise ValueError(f"no edge {list(edges)} among {m}")

@@ -8,7 +8,6 @@ import pytest
 
 from swarmslam.runtime.config import SlamConfig, override
 from swarmslam.runtime.front_end import _unbeatable, scans_overrule
-from swarmslam.runtime.graph_optimizer import GaussNewton
 from swarmslam.runtime.pose import between, compose, wrap_angle
 from swarmslam.runtime.pose_graph import LOOP
 from swarmslam.runtime.scan import PointScan
