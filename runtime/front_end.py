@@ -343,7 +343,8 @@ class FrontEnd:
         self.rebuild_reference()
         self._reading = NO_READING
         if odometry is not None:
-            self._note_reading(odometry, *self.readings.read(odometry, stamp))  # odometry starts here
+            # odometry starts here
+            self._note_reading(odometry, *self.readings.read(odometry, stamp))
             self.odometry_rel[:] = 0.0
         self._record(stamp)
         self._remember(scan)

@@ -101,14 +101,13 @@ class OdometryReadings:
                 self.periods += 1
                 self.fewest = min(self.fewest, scans)
         if period > 0 and gap > 0:
-            scan = self.scan_time / self.scan_intervals
             self.rate[:2] = delta[:2] / period
             missed = max(round(gap / period), 1)  # (readings the same at rest: not new)
-            lag = min(max(self.lag + gap - missed * period, 0.0), scan)
+            lag = min(max(self.lag + gap - missed * period, 0.0), self.scan_interval())
             delta[:2] += self.rate[:2] * (lag - self.lag)
             self.lag = lag
         else:
-            self.lag = 0.5 * self.scan_time / self.scan_intervals if self.scan_intervals else 0.0
+            self.lag = 0.5 * self.scan_interval()
             if self.periods and gap > 0:
                 self.rate[:2] = delta[:2] * (self.periods / self.period_time)
         self.arrival = stamp
@@ -118,6 +117,10 @@ class OdometryReadings:
         self.stale_scans = 0
         self.have = True
         return delta, True, first
+
+    def scan_interval(self) -> float:
+        """The mean interval between the scans so far (s; 0 before two scans)."""
+        return self.scan_time / self.scan_intervals if self.scan_intervals else 0.0
 
     def period(self) -> float:
         """Odometry's own period as the readings so far show it (s), when new readings come on
