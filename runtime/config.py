@@ -360,6 +360,10 @@ class FrontEndConfig(Section):
         0.6, "rad: after odometry's reading came again unchanged (stale), a lost match is "
         "sought again this far either side in heading (a robot may have turned in place "
         "meanwhile)", gt=0, le=math.pi)
+    pivot_search_rate: float = _setting(
+        3.0, "rad/s: a lost match that no prior recovers, its odometry reading taken some time "
+        "before the scan, is sought again over every heading the robot may have turned to "
+        "since the last scan turning at most this fast (0: not)", ge=0, le=20.0)
     stale_motion: bool = _setting(
         True, "a reading that came again unchanged (stale), within as many scans as the last "
         "new one took to come, predicts the translation per scan that reading showed, not "
@@ -957,7 +961,8 @@ BASIC_FIELDS = frozenset({
 EXPERT_FIELDS = frozenset({
     "input.jump_slack", "input.turn_slack",
     "front_end.track_inlier_slope", "front_end.curvature_step", "front_end.window_margin",
-    "front_end.stale_turn_window", "front_end.stale_motion", "front_end.periodic_odometry_ratio",
+    "front_end.stale_turn_window", "front_end.pivot_search_rate", "front_end.stale_motion",
+    "front_end.periodic_odometry_ratio",
     "front_end.degenerate_information",
     "front_end.odometry_gate_share", "front_end.odometry_gate_fit",
     "front_end.odometry_gate_explained", "front_end.odometry_gate_distance",

@@ -186,7 +186,8 @@ class FrontEnd:
         # (after the slide along a degenerate axis is dropped: there the box's edge is no sign)
         inside = not self.matcher.at_box_edge(pose, self.config.front_end.window_margin)
         if self._lost(scan, pose, guess, step, odometry is not None, inside):
-            pose = self._recover(scan, pose, guess, step, odometry is not None, inside)
+            pose = self._recover(scan, pose, guess, step, odometry is not None, inside,
+                                 stamp - self.last_stamp)
         self.motion = between(pose, self.rel)
         self.rel = pose
         if news:
@@ -440,7 +441,8 @@ class FrontEnd:
         self._previous.count = n
         self._previous_listed = False
 
-    def _overrules(self, scan, pose, fit: float, guess, step, inside: bool) -> bool:
+    def _overrules(self, scan, pose, fit: float, guess, step, inside: bool,
+                   stale: bool | None = None) -> bool:
         """A match (``fit``: its share of points on the keyframe's surfaces) is trusted over
         odometry's prediction ``guess`` when it is an optimum inside its search box, not one
         pressed against its edge, fits, and fits clearly better than the prediction does
@@ -451,11 +453,14 @@ class FrontEnd:
         prediction that would count as lost is no place to slide from (docs/method.md §6.1).
         A stale reading is never held to more than a new one: a match the plain gain refuses
         is judged as against a new reading (a turn started facing a near wall: the prediction
-        fits 0.9 of the points, so no gain above 0.1 can be)."""
+        fits 0.9 of the points, so no gain above 0.1 can be). ``stale``: judge as after a
+        stale reading (default: whether this scan's reading is)."""
         c = self.config.front_end
         if not inside or fit < c.min_track_inliers:
             return False
-        if self.stale and scans_overrule(fit, self._inliers(scan, guess), True, c):
+        if stale is None:
+            stale = self.stale
+        if stale and scans_overrule(fit, self._inliers(scan, guess), True, c):
             return True
         # "alone": the heading within the gate's own part, not its share of the turn: a match
         # turning a fast turn's prediction by 20° is no slide along a corridor, and odometry's
@@ -506,7 +511,8 @@ class FrontEnd:
             self.degenerate_matches += 1
         return self.degeneracy.remap(pose, guess)
 
-    def _recover(self, scan, pose, guess, step, have_odometry: bool, inside: bool):
+    def _recover(self, scan, pose, guess, step, have_odometry: bool, inside: bool,
+                 interval: float = math.nan):
         """The guided match ``pose`` lost track. With odometry, the match is sought again
         around the motion the scans showed last, continued (after a stale reading, over a
         heading window as wide as ``stale_turn_window``), and, when ``pose`` pressed against
@@ -517,27 +523,24 @@ class FrontEnd:
         The better fitting of the matches that fit the scans, and clearly better than
         odometry's prediction, stands; otherwise the prediction stands in (the next node's
         edge weakened): a match that merely fits as well may be shifted along a corridor
-        (ACES: eT 0.048 → 0.092 m from one such recovery). On scans alone, search the whole
-        box without a guess — the swarm's strength — and keep the better fitting of the two."""
+        (ACES: eT 0.048 → 0.092 m from one such recovery). When none stands and the reading
+        lags its scan (it came again, after more than a scan, or at a period of its own), one
+        more match spans every heading the robot can have turned to (:meth:`_turned_search`).
+        On scans alone, search the whole box without a guess — the swarm's strength — and
+        keep the better fitting of the two."""
         self.lost_matches += 1
         if have_odometry:
-            c = self.config.front_end
             # (a stale reading says nothing of a turn in place since: 2 rad/s for a scan at
             # 4.7 Hz is 24°, beyond the guess window; the scans' last motion may not show it)
             window = self._turn_window if self.stale else None
-            best, best_fit = None, -1.0
             # around the lost match too when it pressed against its box: the optimum lay beyond
             priors = (compose(self.rel, self.motion),) + (() if inside else (pose,))
-            for prior in priors:
-                match = self.matcher.align_scans(scan, self.reference, prior, window).pose
-                inside_box = not self.matcher.at_box_edge(match, c.window_margin)
-                if c.degeneracy_ratio > 0:  # along a degenerate axis, odometry's position
-                    match = self._constrained(scan, match, guess)  # stands
-                    inside_box = not self.matcher.at_box_edge(
-                        self.degeneracy.remap(match, prior), c.window_margin)
-                fit = self._inliers(scan, match)
-                if fit > best_fit and self._overrules(scan, match, fit, guess, step, inside_box):
-                    best, best_fit, degeneracy = match, fit, self.degeneracy
+            best, _, degeneracy = self._best_overruling(scan, priors, window, guess, step)
+            # (a reading taken some time before its scan says nothing of a pivot since)
+            if best is None and (self.stale or self.readings.reading_scans > 1
+                                 or self.readings.period() > 0):
+                best, _, degeneracy = self._turned_search(scan, guess, step, interval, priors,
+                                                          window)
             if best is not None:
                 self.degeneracy = degeneracy  # (the next node's edge is weak where it slid)
                 self.rescued_matches += 1
@@ -546,6 +549,58 @@ class FrontEnd:
             return guess
         wide = self.matcher.align_scans(scan, self.reference, None).pose
         return max((pose, wide), key=lambda p: self._inliers(scan, p))
+
+    def _turned_search(self, scan, guess, step, interval: float, searched, window):
+        """One match over every heading the robot can have turned to since the last scan, at
+        ``pivot_search_rate`` for ``interval`` s either side of that scan's heading, at the
+        prediction's position. It stands if it overrules the prediction as after a stale
+        reading (:meth:`_best_overruling`) and turns beyond every box searched before (around
+        ``guess`` and each of ``searched``, their half-widths ``window``, None: the guess
+        window's): within them, the searches there found the scans' optimum, and a wider box
+        finds a poorer one in a scan of few surfaces. At 2 Hz a pivot at 2 rad/s turns 57° a
+        scan: its first scan lies beyond the box around every prediction when the reading
+        lags the turn (docs/method.md §6.1, "Recovery")."""
+        c = self.config.front_end
+        if c.pivot_search_rate <= 0 or not math.isfinite(interval) or interval <= 0:
+            return None, -1.0, None
+        prior = np.array(guess, dtype=np.float64)
+        prior[2] = self.rel[2]
+        g = self.config.matcher.guess_window
+        # (wide enough to hold the prediction's own box too)
+        half = max(min(c.pivot_search_rate * interval, math.pi),
+                   abs(float(wrap_angle(guess[2] - self.rel[2]))) + g[2])
+        self.matcher.keep_stream()
+        kept = self.degeneracy, self.degenerate_matches
+        found = self._best_overruling(scan, (prior,), np.array([g[0], g[1], half]), guess, step,
+                                      stale=True)
+        turn = float((g if window is None else window)[2])
+        if found[0] is None or any(abs(float(wrap_angle(found[0][2] - p[2]))) <= turn
+                                   for p in (guess, *searched)):
+            # nothing kept: the run goes on as without the search
+            self.matcher.rewind_stream()
+            self.degeneracy, self.degenerate_matches = kept
+            return None, -1.0, None
+        return found
+
+    def _best_overruling(self, scan, priors, window, guess, step, stale=None):
+        """Of the matches sought around each of ``priors`` (boxes of half-widths ``window``,
+        None: the guess window), the best fitting that overrules odometry's prediction
+        ``guess`` (:meth:`_overrules`, judged as after a ``stale`` reading if given): ``(match,
+        fit, degeneracy)``, the match None when none does."""
+        c = self.config.front_end
+        best, best_fit, degeneracy = None, -1.0, None
+        for prior in priors:
+            match = self.matcher.align_scans(scan, self.reference, prior, window).pose
+            inside_box = not self.matcher.at_box_edge(match, c.window_margin)
+            if c.degeneracy_ratio > 0:  # along a degenerate axis, odometry's position stands
+                match = self._constrained(scan, match, guess)
+                inside_box = not self.matcher.at_box_edge(
+                    self.degeneracy.remap(match, prior), c.window_margin)
+            fit = self._inliers(scan, match)
+            if fit > best_fit and self._overrules(scan, match, fit, guess, step, inside_box,
+                                                  stale):
+                best, best_fit, degeneracy = match, fit, self.degeneracy
+        return best, best_fit, degeneracy
 
     def _prediction(self, odometry, stamp):
         """Where the scan's predicted pose starts (in the keyframe's frame), the motion added

@@ -33,6 +33,11 @@ import numpy as np
 
 from swarmslam.runtime.pose import between
 
+# Gaps in a row longer than twice the fewest that start the period's count again. Two: a robot
+# that stops and goes with odometry at every scan (Intel) held 9 scans periodic; three: none
+# on any given log.
+RESTART_LONG_GAPS = 3
+
 
 class OdometryReadings:
     """The readings so far, and what the next one predicts (see module doc)."""
@@ -52,6 +57,7 @@ class OdometryReadings:
         # the gaps between new readings that count: their sum in s and in scans, their count,
         # and the fewest scans one took
         self.period_time, self.period_scans, self.periods, self.fewest = 0.0, 0, 0, 0
+        self.long_gaps = 0  # gaps in a row longer than twice the fewest
         self.lag = 0.0  # the last new reading's lag behind its scan (up to a constant)
         self.rate = np.zeros(3)  # translation per second it showed (the turn stays 0)
 
@@ -89,13 +95,19 @@ class OdometryReadings:
         scans = self.stale_scans + 1  # the scans this reading took to come
         if gap > 0:
             # Readings the same at rest are not new, so a gap may span several periods: only
-            # gaps of fewer than twice the fewest scans count, and one of fewer than half of
+            # gaps of at most twice the fewest scans count, and one of fewer than half of
             # them starts the count again (those before held a rest: MIT-CSAIL's first gap
-            # is 33 scans, then its odometry comes with every scan)
-            if not self.periods or 2 * scans < self.fewest:
+            # is 33 scans, then its odometry comes with every scan). At most, not fewer: a
+            # period of 1.6 scans comes one scan or two apart (0.8 s at 2 Hz)
+            # RESTART_LONG_GAPS in a row longer than that start the count again too: the
+            # fewest was a stray (after scans refused on the way, no beam returned, a reading
+            # came a scan after the one that brought the reading before it)
+            self.long_gaps = self.long_gaps + 1 if scans > 2 * self.fewest else 0
+            if (not self.periods or 2 * scans < self.fewest
+                    or self.long_gaps >= RESTART_LONG_GAPS):
                 self.period_time, self.period_scans, self.periods = gap, scans, 1
-                self.fewest = scans
-            elif scans < 2 * self.fewest:
+                self.fewest, self.long_gaps = scans, 0
+            elif scans <= 2 * self.fewest:
                 self.period_time += gap
                 self.period_scans += scans
                 self.periods += 1
@@ -132,7 +144,7 @@ class OdometryReadings:
         return self.period_time / self.periods if periodic else 0.0
 
     _STATE = ("stamp", "arrival", "scan_time", "scan_intervals", "period_time", "period_scans",
-              "periods", "fewest", "lag")
+              "periods", "fewest", "long_gaps", "lag")
 
     def state(self) -> dict:
         """The readings as a saved session keeps them (the front end's)."""
@@ -160,7 +172,8 @@ class OdometryReadings:
             setattr(self, k, type(getattr(self, k))(state.get(f"readings_{k}", default)))
         rate = np.asarray(state.get("readings_rate", np.zeros(3)), np.float64)
         if (rate.shape != (3,) or not np.all(np.isfinite(rate)) or min(
-                self.scan_intervals, self.period_scans, self.periods, self.fewest) < 0 or not all(
+                self.scan_intervals, self.period_scans, self.periods, self.fewest,
+                self.long_gaps) < 0 or not all(
                 math.isfinite(getattr(self, k)) and getattr(self, k) >= 0
                 for k in ("scan_time", "period_time", "lag"))):
             raise ValueError("odometry's period is not one these readings keep")

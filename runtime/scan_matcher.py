@@ -366,6 +366,19 @@ class ScanMatcher:
         self._settled = np.zeros(N_OUT)
         self._box = np.zeros((2, 3))
         self._hessian = np.zeros((3, 3))
+        self._kept_rng = self.optimizer.ws.rng.copy()  # (keep_stream)
+        self._kept_threshold = self.threshold.state()
+
+    def keep_stream(self) -> None:
+        """Remember the swarm's random stream and the rejection threshold, for
+        :meth:`rewind_stream` to put back: matches whose outcome is dropped leave no trace."""
+        self._kept_rng[:] = self.optimizer.ws.rng
+        self._kept_threshold = self.threshold.state()
+
+    def rewind_stream(self) -> None:
+        """The stream and the threshold as :meth:`keep_stream` saw them."""
+        self.optimizer.ws.rng[:] = self._kept_rng
+        self.threshold.restore(self._kept_threshold)
 
     def state(self) -> dict:
         """The swarm's random stream and buffers, and the rejection threshold."""

@@ -719,6 +719,35 @@ def test_a_match_pressed_against_its_box_is_sought_again_around_itself():
     assert errors.max() < 1.0, errors
 
 
+def test_a_pivot_beyond_every_box_is_found_over_the_turn_the_robot_can_make():
+    """Scans at 2 Hz of a robot that turns on the spot 75° a scan (2.6 rad/s) for three scans,
+    its odometry (exact) read every second scan. The turn starts at a scan with a stale
+    reading, which says nothing of it: the scans' last motion says no turn, the match pressed
+    against the stale box (±34°) and sought again around itself reaches 68°. One more search,
+    over every heading the robot can turn to in half a second (``pivot_search_rate`` 3 rad/s:
+    ±86°), finds it (docs/method.md §6.1, "Recovery"); without it (``pivot_search_rate`` 0) the
+    prediction stands in, 75° off, there and at the next stale scan."""
+    loop = loop_path(80)
+    world = room_world(0, size=(12.0, 9.0), boxes=14, walls=0, keep_clear=loop)
+    turns = np.r_[np.zeros(5), np.arange(1, 4), np.full(3, 3)] * np.radians(75.0)
+    path = np.c_[np.tile(loop[0, :2], (len(turns), 1)), loop[0, 2] + turns]
+    truth = between(path, path[0])
+
+    def heading_errors(config):
+        slam = GraphSlam(config, seed=0)
+        scan = PointScan(len(ANGLES))
+        headings = []
+        for k in range(len(path)):
+            scan.set_ranges(scan_at(world, path[k], ANGLES, 12.0, 0.01), ANGLES, 0.05, 12.0)
+            headings.append(slam.step(scan, path[k - k % 2], 0.5 * k).pose[2])
+        return slam, np.degrees(np.abs(wrap_angle(np.array(headings) - truth[:, 2])))
+
+    slam, errors = heading_errors(SlamConfig())
+    assert slam.front_end.rescued_matches >= 2 and errors.max() < 1.0, errors
+    slam, errors = heading_errors(override(SlamConfig(), {"front_end.pivot_search_rate": 0.0}))
+    assert errors[5] > 70.0 and errors[7] > 70.0, errors
+
+
 def _pivot_facing_a_near_wall(config):
     """A corridor 2 m wide ending in a wall; the robot drives up to 0.6 m from it, then turns
     on the spot 8° a scan, its odometry (exact) read every fourth scan and stale in between.
