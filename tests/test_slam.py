@@ -260,6 +260,19 @@ def test_match_contradicting_odometry_is_not_trusted_unless_the_scans_clearly_si
     assert heading_error[20] > 8.0, heading_error[20]
 
 
+def _heading_errors(config, world, path, reading, interval):
+    """A run along ``path`` in ``world``, scans ``interval`` s apart, the odometry reading at
+    scan k ``reading(k)``: the SLAM, and each scan's heading error (°) against the path's."""
+    truth = between(path, path[0])
+    slam = GraphSlam(config, seed=0)
+    scan = PointScan(len(ANGLES))
+    headings = []
+    for k in range(len(path)):
+        scan.set_ranges(scan_at(world, path[k], ANGLES, 12.0, 0.01), ANGLES, 0.05, 12.0)
+        headings.append(slam.step(scan, reading(k), interval * k).pose[2])
+    return slam, np.degrees(np.abs(wrap_angle(np.array(headings) - truth[:, 2])))
+
+
 def test_a_rescued_match_within_the_gate_stands_when_it_fits_far_better():
     """A robot turning on the spot 30° a scan whose odometry reading jumps 18° ahead once:
     the match around its prediction is pressed against its box's edge (±17°), so it is
@@ -271,23 +284,15 @@ def test_a_rescued_match_within_the_gate_stands_when_it_fits_far_better():
     world = room_world(0, size=(12.0, 9.0), boxes=14, walls=0, keep_clear=loop)
     turn, jump = np.radians(30.0), np.radians(18.0)
     path = np.array([[loop[0, 0], loop[0, 1], loop[0, 2] + k * turn] for k in range(10)])
-    truth = between(path, path[0])
 
-    def heading_errors(config):
-        slam = GraphSlam(config, seed=0)
-        scan = PointScan(len(ANGLES))
-        headings = []
-        for k in range(len(path)):
-            reading = compose(path[k], [0.0, 0.0, jump]) if k >= 6 else path[k]
-            scan.set_ranges(scan_at(world, path[k], ANGLES, 12.0, 0.01), ANGLES, 0.05, 12.0)
-            headings.append(slam.step(scan, reading, float(k)).pose[2])
-        return slam, np.degrees(np.abs(wrap_angle(np.array(headings) - truth[:, 2])))
+    def reading(k):
+        return compose(path[k], [0.0, 0.0, jump]) if k >= 6 else path[k]
 
-    slam, errors = heading_errors(SlamConfig())
+    slam, errors = _heading_errors(SlamConfig(), world, path, reading, 1.0)
     assert slam.front_end.rescued_matches >= 1, errors
     assert errors.max() < 1.0, errors
     refused = override(SlamConfig(), {"front_end.odometry_gate_explained": 1.0})
-    slam, errors = heading_errors(refused)
+    slam, errors = _heading_errors(refused, world, path, reading, 1.0)
     assert slam.front_end.rescued_matches == 0
     assert errors[6] > 15.0, errors
 
@@ -731,20 +736,14 @@ def test_a_pivot_beyond_every_box_is_found_over_the_turn_the_robot_can_make():
     world = room_world(0, size=(12.0, 9.0), boxes=14, walls=0, keep_clear=loop)
     turns = np.r_[np.zeros(5), np.arange(1, 4), np.full(3, 3)] * np.radians(75.0)
     path = np.c_[np.tile(loop[0, :2], (len(turns), 1)), loop[0, 2] + turns]
-    truth = between(path, path[0])
 
-    def heading_errors(config):
-        slam = GraphSlam(config, seed=0)
-        scan = PointScan(len(ANGLES))
-        headings = []
-        for k in range(len(path)):
-            scan.set_ranges(scan_at(world, path[k], ANGLES, 12.0, 0.01), ANGLES, 0.05, 12.0)
-            headings.append(slam.step(scan, path[k - k % 2], 0.5 * k).pose[2])
-        return slam, np.degrees(np.abs(wrap_angle(np.array(headings) - truth[:, 2])))
+    def every_second_scan(k):
+        return path[k - k % 2]
 
-    slam, errors = heading_errors(SlamConfig())
+    slam, errors = _heading_errors(SlamConfig(), world, path, every_second_scan, 0.5)
     assert slam.front_end.rescued_matches >= 2 and errors.max() < 1.0, errors
-    slam, errors = heading_errors(override(SlamConfig(), {"front_end.pivot_search_rate": 0.0}))
+    off = override(SlamConfig(), {"front_end.pivot_search_rate": 0.0})
+    slam, errors = _heading_errors(off, world, path, every_second_scan, 0.5)
     assert errors[5] > 70.0 and errors[7] > 70.0, errors
 
 
