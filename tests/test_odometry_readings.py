@@ -100,7 +100,7 @@ def test_odometry_read_every_one_or_two_scans_is_taken_as_periodic():
     last (1.6 on average). Gaps of two scans count towards the period although the fewest is
     one: counted only below twice the fewest, they were taken for rests, no period was found,
     and each stale scan was predicted at rest, a quarter of a metre behind the robot (a
-    simulated 2 Hz robot survey: eT 0.11 m against 0.012 with the period)."""
+    simulated 2 Hz robot survey: eT 0.131 m, 0.025 with the period)."""
     readings = OdometryReadings(stale_motion=True, periodic_ratio=1.5)
     for k in range(100):
         t = k / 2.0 + 0.013

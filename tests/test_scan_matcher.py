@@ -94,6 +94,27 @@ def test_same_seed_same_match_bit_for_bit():
     assert a.pose.tobytes() == b.pose.tobytes() and a.error == b.error
 
 
+def test_a_match_between_keep_and_rewind_leaves_no_trace():
+    """Matches whose outcome is dropped (the front end's pivot search that keeps nothing)
+    put the random stream and the rejection threshold back: the next match is the one a
+    matcher that never made them gives, to the bit; without the rewind it is not."""
+    ref, cur = scans_for(MOTIONS["roto-translation"], 0.02)
+    plain = ScanMatcher(MatcherConfig.for_optimizer("abc"), seed=1)
+    expected = plain.align_scans(cur, plain.build_reference(ref))
+    m = ScanMatcher(MatcherConfig.for_optimizer("abc"), seed=1)
+    reference = m.build_reference(ref)
+    m.keep_stream()
+    m.align_scans(cur, reference, np.array([0.5, 0.0, 0.2]))
+    m.rewind_stream()
+    after = m.align_scans(cur, reference)
+    assert after.pose.tobytes() == expected.pose.tobytes() and after.error == expected.error
+    assert m.threshold.state() == plain.threshold.state()
+    m = ScanMatcher(MatcherConfig.for_optimizer("abc"), seed=1)
+    reference = m.build_reference(ref)
+    m.align_scans(cur, reference, np.array([0.5, 0.0, 0.2]))
+    assert m.align_scans(cur, reference).pose.tobytes() != expected.pose.tobytes()
+
+
 def test_threshold_tracks_mean_plus_std_and_triggers_fallback():
     ref, cur = scans_for(MOTIONS["translation"], 0.02)
     # Without the stall rule every stage spends its whole budget, so the count shows the
