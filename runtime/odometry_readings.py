@@ -100,8 +100,8 @@ class OdometryReadings:
             # is 33 scans, then its odometry comes with every scan). At most, not fewer: a
             # period of 1.6 scans comes one scan or two apart (0.8 s at 2 Hz)
             # RESTART_LONG_GAPS in a row longer than that start the count again too: the
-            # fewest was a stray (after scans refused on the way, no beam returned, a reading
-            # came a scan after the one that brought the reading before it)
+            # fewest was a stray (a reading one scan after the one before it, in a survey
+            # whose scans were refused now and then, no beam returned)
             self.long_gaps = self.long_gaps + 1 if scans > 2 * self.fewest else 0
             if (not self.periods or 2 * scans < self.fewest
                     or self.long_gaps >= RESTART_LONG_GAPS):

@@ -116,7 +116,7 @@ def test_scans_refused_on_the_way_do_not_hide_the_period():
     on the way (no beam returned: the readings never see them), and of 0.6 s again later:
     after each, a reading comes one scan after the one before it. Three gaps of four scans in
     a row outgrow that stray fewest, and the period stays known (a simulated robot survey
-    whose 8 m SICK saw nothing for 2 s had lost it for the rest of its run)."""
+    with an 8 m SICK, its scans refused now and then, had lost it for its last 110 s)."""
     readings = OdometryReadings(stale_motion=True, periodic_ratio=1.5)
     known = []
     for k in range(600):
