@@ -512,7 +512,7 @@ class FrontEnd:
         return self.degeneracy.remap(pose, guess)
 
     def _recover(self, scan, pose, guess, step, have_odometry: bool, inside: bool,
-                 interval: float = math.nan):
+                 interval: float):
         """The guided match ``pose`` lost track. With odometry, the match is sought again
         around the motion the scans showed last, continued (after a stale reading, over a
         heading window as wide as ``stale_turn_window``), and, when ``pose`` pressed against
@@ -535,12 +535,12 @@ class FrontEnd:
             window = self._turn_window if self.stale else None
             # around the lost match too when it pressed against its box: the optimum lay beyond
             priors = (compose(self.rel, self.motion),) + (() if inside else (pose,))
-            best, _, degeneracy = self._best_overruling(scan, priors, window, guess, step)
+            best, degeneracy = self._best_overruling(scan, priors, window, guess, step)
             # (a reading taken some time before its scan says nothing of a pivot since)
             if best is None and (self.stale or self.readings.reading_scans > 1
                                  or self.readings.period() > 0):
-                best, _, degeneracy = self._turned_search(scan, guess, step, interval, priors,
-                                                          window)
+                best, degeneracy = self._turned_search(scan, guess, step, interval, priors,
+                                                       window)
             if best is not None:
                 self.degeneracy = degeneracy  # (the next node's edge is weak where it slid)
                 self.rescued_matches += 1
@@ -562,7 +562,7 @@ class FrontEnd:
         lags the turn (docs/method.md §6.1, "Recovery")."""
         c = self.config.front_end
         if c.pivot_search_rate <= 0 or not math.isfinite(interval) or interval <= 0:
-            return None, -1.0, None
+            return None, None
         prior = np.array(guess, dtype=np.float64)
         prior[2] = self.rel[2]
         g = self.config.matcher.guess_window
@@ -579,14 +579,14 @@ class FrontEnd:
             # nothing kept: the run goes on as without the search
             self.matcher.rewind_stream()
             self.degeneracy, self.degenerate_matches = kept
-            return None, -1.0, None
+            return None, None
         return found
 
     def _best_overruling(self, scan, priors, window, guess, step, stale=None):
         """Of the matches sought around each of ``priors`` (boxes of half-widths ``window``,
         None: the guess window), the best fitting that overrules odometry's prediction
         ``guess`` (:meth:`_overrules`, judged as after a ``stale`` reading if given): ``(match,
-        fit, degeneracy)``, the match None when none does."""
+        degeneracy)``, the match None when none does."""
         c = self.config.front_end
         best, best_fit, degeneracy = None, -1.0, None
         for prior in priors:
@@ -600,7 +600,7 @@ class FrontEnd:
             if fit > best_fit and self._overrules(scan, match, fit, guess, step, inside_box,
                                                   stale):
                 best, best_fit, degeneracy = match, fit, self.degeneracy
-        return best, best_fit, degeneracy
+        return best, degeneracy
 
     def _prediction(self, odometry, stamp):
         """Where the scan's predicted pose starts (in the keyframe's frame), the motion added
