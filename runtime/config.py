@@ -374,6 +374,11 @@ class FrontEndConfig(Section):
         "apart is read at its own period: each reading's lag behind the scan that brought it "
         "is followed, and a stale reading continues the rate the last one showed for a period "
         "(docs/method.md §6.1, \"Odometry at its own period\"); 0: off", ge=0)
+    period_restart_gaps: int = _setting(
+        3, "this many gaps in a row between new odometry readings, each longer than twice the "
+        "fewest scans one took, start the period's count again: the fewest was a stray (a "
+        "reading one scan after another where scans were refused now and then); 2 held "
+        "Intel's odometry, read with every scan, periodic for 9 scans", ge=1, le=1000)
     window_margin: float = _setting(
         0.05, "a match within this share of its search box's edge found no optimum inside the "
         "box: tracking is lost", ge=0, lt=1)
@@ -962,7 +967,7 @@ EXPERT_FIELDS = frozenset({
     "input.jump_slack", "input.turn_slack",
     "front_end.track_inlier_slope", "front_end.curvature_step", "front_end.window_margin",
     "front_end.stale_turn_window", "front_end.pivot_search_rate", "front_end.stale_motion",
-    "front_end.periodic_odometry_ratio",
+    "front_end.periodic_odometry_ratio", "front_end.period_restart_gaps",
     "front_end.degenerate_information",
     "front_end.odometry_gate_share", "front_end.odometry_gate_fit",
     "front_end.odometry_gate_explained", "front_end.odometry_gate_distance",

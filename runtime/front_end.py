@@ -138,7 +138,8 @@ class FrontEnd:
         self.rel = np.zeros(3)  # the current pose in the keyframe's frame
         self.motion = np.zeros(3)  # last motion between scans, for a scan-only prediction
         self.readings = OdometryReadings(config.front_end.stale_motion,
-                                         config.front_end.periodic_odometry_ratio)
+                                         config.front_end.periodic_odometry_ratio,
+                                         config.front_end.period_restart_gaps)
         # The pose (in the keyframe's frame) of the scan that brought odometry's last new
         # reading: its motion is predicted from there (docs/method.md §6.1).
         self.odometry_rel = np.zeros(3)

@@ -77,7 +77,8 @@ class Localizer:
         self.poses = np.full((n, 3), np.nan)  # NaN: no committed pose at that scan
         self.n_scans = 0
         self.readings = OdometryReadings(config.front_end.stale_motion,
-                                         config.front_end.periodic_odometry_ratio)
+                                         config.front_end.periodic_odometry_ratio,
+                                         config.front_end.period_restart_gaps)
         self.last_stamp = math.nan  # the scan before's, for the sweep (docs/method.md §6.1)
         self.counts = {"searches": 0, "ambiguous_answers": 0, "empty_answers": 0,
                        "committed": 0, "lost": 0, "poor_matches": 0, "tracked_scans": 0,

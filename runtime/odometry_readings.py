@@ -31,20 +31,20 @@ import math
 
 import numpy as np
 
+from swarmslam.runtime.config import FrontEndConfig
 from swarmslam.runtime.pose import between
 
-# Gaps in a row longer than twice the fewest that start the period's count again. Two: a robot
-# that stops and goes with odometry at every scan (Intel) held 9 scans periodic; three: none
-# on any given log.
-RESTART_LONG_GAPS = 3
+_DEFAULTS = FrontEndConfig()
 
 
 class OdometryReadings:
     """The readings so far, and what the next one predicts (see module doc)."""
 
-    def __init__(self, stale_motion: bool, periodic_ratio: float = 0.0):
+    def __init__(self, stale_motion: bool, periodic_ratio: float = 0.0,
+                 restart_gaps: int = _DEFAULTS.period_restart_gaps):
         self.stale_motion = stale_motion
         self.periodic_ratio = periodic_ratio
+        self.restart_gaps = restart_gaps  # front_end.period_restart_gaps
         self.last = np.zeros(3)  # the last new reading (a copy)
         self.have = False  # a reading came at the last scan: the next one is a motion from it
         self.stale_scans = 0  # scans since the last new reading
@@ -99,12 +99,12 @@ class OdometryReadings:
             # them starts the count again (those before held a rest: MIT-CSAIL's first gap
             # is 33 scans, then its odometry comes with every scan). At most, not fewer: a
             # period of 1.6 scans comes one scan or two apart (0.8 s at 2 Hz)
-            # RESTART_LONG_GAPS in a row longer than that start the count again too: the
+            # ``restart_gaps`` in a row longer than that start the count again too: the
             # fewest was a stray (a reading one scan after the one before it, in a survey
             # whose scans were refused now and then, no beam returned)
             self.long_gaps = self.long_gaps + 1 if scans > 2 * self.fewest else 0
             if (not self.periods or 2 * scans < self.fewest
-                    or self.long_gaps >= RESTART_LONG_GAPS):
+                    or self.long_gaps >= self.restart_gaps):
                 self.period_time, self.period_scans, self.periods = gap, scans, 1
                 self.fewest, self.long_gaps = scans, 0
             elif scans <= 2 * self.fewest:

@@ -4,6 +4,7 @@ continued translation while fewer scans have passed than the last reading took t
 
 import numpy as np
 
+from swarmslam.runtime.config import SlamConfig
 from swarmslam.runtime.odometry_readings import OdometryReadings
 
 
@@ -116,18 +117,26 @@ def test_scans_refused_on_the_way_do_not_hide_the_period():
     on the way (no beam returned: the readings never see them), and of 0.6 s again later:
     after each, a reading comes one scan after the one before it. Three gaps of four scans in
     a row outgrow that stray fewest, and the period stays known (a simulated robot survey
-    with an 8 m SICK, its scans refused now and then, had lost it for its last 110 s)."""
-    readings = OdometryReadings(stale_motion=True, periodic_ratio=1.5)
-    known = []
-    for k in range(600):
-        t = k / 5.0 + 0.013
-        if 11.5 < t < 13.3 or 40.1 < t < 40.7:
-            continue
-        taken = np.floor((t - 0.2 * (40.7 <= t < 41.0)) / 0.8) * 0.8
-        readings.read([0.5 * taken, 0.0, 0.0], t)
-        known.append(readings.period())
-    assert abs(readings.period() - 0.8) < 0.02, readings.period()
-    assert np.mean(np.array(known[100:]) > 0) > 0.95
+    with an 8 m SICK, its scans refused now and then, had lost it for its last 110 s). Never
+    restarted (``front_end.period_restart_gaps`` past the run's gaps), the count stops at the
+    stray and the period stays what the gaps before it made (0.86 s)."""
+    def known_periods(restart_gaps):
+        readings = OdometryReadings(stale_motion=True, periodic_ratio=1.5,
+                                    restart_gaps=restart_gaps)
+        known = []
+        for k in range(600):
+            t = k / 5.0 + 0.013
+            if 11.5 < t < 13.3 or 40.1 < t < 40.7:
+                continue
+            taken = np.floor((t - 0.2 * (40.7 <= t < 41.0)) / 0.8) * 0.8
+            readings.read([0.5 * taken, 0.0, 0.0], t)
+            known.append(readings.period())
+        return np.array(known)
+
+    known = known_periods(SlamConfig().front_end.period_restart_gaps)
+    assert abs(known[-1] - 0.8) < 0.02, known[-1]
+    assert np.mean(known[100:] > 0) > 0.95
+    assert abs(known_periods(1000)[-1] - 0.8) > 0.04
 
 
 def test_a_restored_session_reads_on_as_the_running_one_would():
