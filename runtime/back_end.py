@@ -316,8 +316,7 @@ class BackEnd:
         members = self._members
         proposal = guess is not None
         if not proposal:
-            last = min(candidate + c.submap_nodes, node - c.exclude_recent)  # not neighbours
-            first, last = max(candidate - c.submap_nodes, 0), max(last, candidate)
+            first, last = loops.submap_span(candidate, node)
             n_members = last - first + 1
             for k in range(n_members):
                 members[k] = first + k
@@ -389,6 +388,11 @@ class BackEnd:
         g, trial, loops = self.graph, self.trial, self.loops
         if self.edges_full():
             return False
+        steady = loops.steadiest(g, candidate, node)
+        if steady != candidate:  # the same place of the map, from a node whose pose fits it
+            z = between(compose(g.poses[candidate], z), g.poses[steady])
+            candidate = steady
+            loops.reanchored += 1
         total_before = g.chi2()
         trial.copy_from(g)
         n, m = g.n_nodes, g.n_edges
@@ -556,7 +560,7 @@ class BackEnd:
             "revision": self.revision, "status": self.status,
             "rise_refused": self.rise_refused.copy(), "agreed": self.loops.agreed,
             "strained": self.strained.copy(), "strained_info": self.strained_info.copy(),
-            "given_up": self.loops.given_up,
+            "given_up": self.loops.given_up, "reanchored": self.loops.reanchored,
         }
 
     def restore(self, state: dict) -> None:
@@ -618,6 +622,7 @@ class BackEnd:
                              "exist")
         self.strained[:], self.strained_info[:] = strained, info
         self.loops.given_up = int(state.get("given_up", 0))
+        self.loops.reanchored = int(state.get("reanchored", 0))  # (0: saved before the rule)
 
 
 def _advance(steps, sliced: bool):

@@ -475,6 +475,13 @@ class LoopClosureConfig(Section):
                                      ge=0)
     submap_nodes: int = _setting(2, "node scans either side of the candidate in its submap", ge=0,
                                  le=50)
+    steady_turn_rate: float = _setting(
+        0.5, "rad/s: a candidate whose node turned faster than this to the node before or after "
+        "it (over the time between) gives its loop edge to the nearest node of its submap that "
+        "turned no faster, the match re-expressed in that node's frame: a scan swept in a fast "
+        "turn leaves its node's pose degrees off the map its scan draws, and every closure "
+        "made to that node would repeat the offset (docs/method.md §5, step 3); 0: never",
+        ge=0)
     search_window: tuple[float, float, float] = _setting(
         (2.0, 2.0, 0.5), "least half-widths of the loop match's box around the graph's estimate",
         gt=0)
@@ -974,6 +981,7 @@ EXPERT_FIELDS = frozenset({
     "front_end.odometry_heading_weight", "front_end.odometry_heading_sigma",
     "front_end.previous_scan_gain", "front_end.previous_scan_fit",
     "front_end.between_significance", "front_end.between_gate", "front_end.between_min_pairs",
+    "loop_closure.steady_turn_rate",
     "loop_closure.agreement_nodes", "loop_closure.agreement_distance",
     "loop_closure.agreement_angle", "loop_closure.max_given_up", "loop_closure.min_strain",
     "matcher.surface_bend", "matcher.surface_gap_ratio", "matcher.coarse_radius",

@@ -29,7 +29,7 @@ import numpy as np
 from numba import njit
 
 from swarmslam.runtime.config import LoopClosureConfig
-from swarmslam.runtime.pose import between
+from swarmslam.runtime.pose import between, wrap_angle
 
 CHI2_2D_95 = 5.991
 
@@ -150,6 +150,7 @@ class LoopCloser:
         self.rejected_consistency = 0
         self.agreed = 0  # loops kept past the rise test by agreeing with one refused by it
         self.given_up = 0  # kept loops given up for two later ones that agree (back end)
+        self.reanchored = 0  # loop edges tried from a steadier node than their candidate
 
     def candidates(self, graph, node_cov, node: int) -> list[int]:
         """Steps 1–2: nearby nodes inside the 95% ellipse of the relative position."""
@@ -191,6 +192,28 @@ class LoopCloser:
                          max(c.max_search_window[d], c.search_window[d]))
         return out
 
+    def submap_span(self, candidate: int, node: int) -> tuple[int, int]:
+        """The first and last node of the ordinary submap around ``candidate`` for a loop
+        from ``node``: ``submap_nodes`` either side, none of ``node``'s neighbours."""
+        c = self.config
+        last = min(candidate + c.submap_nodes, node - c.exclude_recent)
+        return max(candidate - c.submap_nodes, 0), max(last, candidate)
+
+    def steadiest(self, graph, candidate: int, node: int) -> int:
+        """The node a loop edge from ``node`` against ``candidate``'s submap is given to (step
+        3): ``candidate`` itself unless its node turned faster than ``steady_turn_rate``,
+        then the submap's nearest node turning no faster (``candidate`` if none is)."""
+        rate = self.config.steady_turn_rate
+        if rate <= 0 or turn_rate(graph, candidate, node) <= rate:
+            return candidate
+        first, last = self.submap_span(candidate, node)
+        best, best_gap, best_rate = candidate, math.inf, math.inf
+        for k in range(first, last + 1):
+            r, gap = turn_rate(graph, k, node), abs(k - candidate)
+            if r <= rate and (gap < best_gap or (gap == best_gap and r < best_rate)):
+                best, best_gap, best_rate = k, gap, r
+        return best
+
     def verdicts(self, graph, edge: int, total_before: float) -> tuple[bool, bool]:
         """Step 4's two tests, after optimising with the new edge: its own error is within
         ``chi2_gate`` (the graph absorbed it), and the total rose by at most ``total_gate``."""
@@ -198,6 +221,17 @@ class LoopCloser:
         chi2 = graph.edge_chi2()
         return (float(chi2[edge]) <= c.chi2_gate,
                 float(np.sum(chi2)) - total_before <= c.total_gate)
+
+
+def turn_rate(graph, k: int, before: int) -> float:
+    """How fast node ``k`` turned, by the graph: its largest turn to the node just before or
+    after it (of those before node ``before``) over the time between them (rad/s)."""
+    p, t = graph.poses, graph.stamps
+    rate = 0.0
+    for other in (k - 1, k + 1):
+        if 0 <= other < before and t[other] != t[k]:
+            rate = max(rate, abs(float(wrap_angle(p[other, 2] - p[k, 2]))) / abs(t[other] - t[k]))
+    return rate
 
 
 def relative_guess(graph, i: int, j: int) -> np.ndarray:

@@ -306,6 +306,7 @@ def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, s
         "loops_rejected_consistency": slam.back_end.loops.rejected_consistency,
         "loops_agreed": slam.back_end.loops.agreed,
         "loops_given_up": slam.back_end.loops.given_up,
+        "loops_reanchored": slam.back_end.loops.reanchored,
         "matches_recovered": slam.front_end.lost_matches,
         "matches_degenerate": slam.front_end.degenerate_matches,
         "matches_disowned": slam.front_end.disowned_matches,

@@ -549,6 +549,35 @@ def test_a_loop_refused_for_the_drift_it_repairs_is_kept_when_the_next_agrees(mo
     assert not back.close_loop(1, n - 1, z)  # without the rule, refused as before
 
 
+@pytest.mark.parametrize("rate, given_to", [(0.5, 4), (0.0, 5)])
+def test_a_loop_to_a_node_scanned_in_a_fast_turn_is_given_to_a_steady_neighbour(rate, given_to):
+    """Node 5 was scanned as the robot turned 0.5 rad in 0.25 s: a scan swept in such a turn
+    leaves its node's pose off the map its scan draws. A loop matched against its submap is
+    given to node 4, its nearest node turning no faster than ``steady_turn_rate`` (node 6 ends
+    the same turn), the measurement re-expressed in node 4's frame: the same place of the map.
+    At 0 the loop stays with node 5 (docs/method.md §5, step 3)."""
+    slam = GraphSlam(override(SlamConfig(), {"loop_closure.steady_turn_rate": rate}), seed=0)
+    g, back = slam.graph, slam.back_end
+    info = slam.front_end.information()
+    pose, stamp = np.zeros(3), 0.0
+    for k in range(30):
+        if k:
+            z = [0.0, 0.0, 0.5] if k == 6 else [0.5, 0.0, 0.0]
+            pose, stamp = compose(pose, z), stamp + (0.25 if k == 6 else 1.0)
+            g.add_edge(k - 1, g.add_node(pose, stamp), z, info)
+        else:
+            g.add_node(pose, stamp)
+    back.z_info[:] = slam.front_end.information(loop=True)
+    measured = compose(between(g.poses[29], g.poses[5]), [0.02, -0.01, 0.01])
+    before = g.poses[:30].copy()
+    there = compose(before[5], measured)  # where the match puts node 29
+    assert back.close_loop(5, 29, measured)
+    edge = g.n_edges - 1
+    assert tuple(g.ij[edge]) == (given_to, 29) and g.kind[edge] == LOOP
+    np.testing.assert_allclose(compose(before[given_to], g.z[edge]), there, atol=1e-12)
+    assert back.loops.reanchored == int(given_to != 5)
+
+
 def _chain_with_wrong_loops(config, n=60, step=0.5, turn=0.003):
     """A GraphSlam whose graph is a chain of ``n`` nodes along a straight line, its odometry
     turning ``turn`` rad a step (2.2 m to the side after 55 nodes), and loops from nodes 0, 1
