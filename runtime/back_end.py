@@ -384,7 +384,9 @@ class BackEnd:
         """Step 3b as a chain of CLOSE slices (a generator returning whether the edge was
         kept): the graph is copied with the edge added and optimised one Gauss–Newton step
         per slice; a consistent result is then written back, with the nodes the front end
-        added meanwhile carried along by their edges (docs/runtime.md §3)."""
+        added meanwhile carried along by their edges (docs/runtime.md §3). The edge's old end
+        is the candidate's steadiest node (:meth:`LoopCloser.steadiest`, docs/method.md §5,
+        step 3), ``z`` re-expressed in its frame."""
         g, trial, loops = self.graph, self.trial, self.loops
         if self.edges_full():
             return False
