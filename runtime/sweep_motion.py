@@ -8,9 +8,11 @@ sweep").
                               previous, interval)    # Alg. 5 on the scan so undistorted
 
 An RPLidar's sweep is its whole rotation (0.18 s at 5.5 Hz): turning at 1 rad/s the robot
-turns 10° between its first beam and its last, and a straight wall comes out bent. A SICK LMS
-sweeps its 180° in 13 ms (27 ms for two interlaced 0.5° sweeps), where the same turn is 1.5°
-at most; its presets leave the sweep at 0, which changes nothing. Only the turn is undone:
+turns 10° between its first beam and its last, and a straight wall comes out bent. The second
+pass takes the turn at a rate changing evenly over the sweep, from the last interval's: a
+pivot starts and ends within a sweep. A SICK LMS sweeps its 180° in 13 ms (27 ms for two
+interlaced 0.5° sweeps), where the same turn is 1.5° at most; its presets leave the sweep at
+0, which changes nothing. Only the turn is undone:
 the translation over the sweep, undone too by the motion the scans showed, cost the
 simulated logs' relations more than it gained (docs/experiments/2026-11-28-sweep.md).
 """
@@ -27,12 +29,16 @@ from swarmslam.runtime.scan import PointScan
 
 
 @njit(cache=True)
-def undistort(points, places, count, w, seconds, stamp_place, out):
+def undistort(points, places, count, w, seconds, stamp_place, out, w_last=math.nan):
     """Turn ``points[:count]`` (robot frame) into ``out`` as seen at the robot's heading at
     the stamp: point ``i`` was taken ``(places[i] − stamp_place)·seconds`` from the stamp,
-    while the robot turned at ``w`` rad/s."""
+    while the robot turned at ``w`` rad/s — or, given ``w_last``, at a rate changing evenly
+    from ``w`` at the sweep's first beam to ``w_last`` at its last."""
+    dw = 0.0 if math.isnan(w_last) else w_last - w
+    s2 = stamp_place * stamp_place
     for i in range(count):
-        a = w * (places[i] - stamp_place) * seconds
+        p = places[i]
+        a = (w * (p - stamp_place) + dw * (p * p - s2) * 0.5) * seconds
         c = math.cos(a)
         s = math.sin(a)
         x = points[i, 0]
@@ -55,18 +61,26 @@ class SweepMotion:
         """The scanner's beams are not simultaneous (a sweep is configured)."""
         return self.seconds > 0.0
 
-    def undistort(self, scan: PointScan, motion, interval: float) -> PointScan:
+    def undistort(self, scan: PointScan, motion, interval: float,
+                  rate_before: float = math.nan) -> PointScan:
         """``scan`` as seen at the robot's heading at its stamp, given ``motion`` (the robot's,
         its turn ``motion[2]`` read) over the ``interval`` s before it; ``scan`` itself when
         the sweep is 0 or the interval unknown. The returned scan is this object's buffer,
         valid until the next call. An interval shorter than the sweep is a stamp's jitter (a
-        scanner takes one sweep per scan): the sweep's own length is used."""
+        scanner takes one sweep per scan): the sweep's own length is used. The turn is taken
+        at a steady rate, or, given ``rate_before`` (rad/s, the rate of the interval before),
+        at a rate changing evenly from that one at the sweep's first beam to the one that
+        makes the same turn: a turn that starts or ends is not steady over a sweep."""
         if not self.moving or not math.isfinite(interval) or interval <= 0.0:
             return scan
         out = self._out
-        undistort(scan.buffer, scan.sweep, scan.count,
-                  float(motion[2]) / max(interval, self.seconds), self.seconds,
-                  self.stamp_place, out.buffer)
+        rate = float(motion[2]) / max(interval, self.seconds)
+        if math.isfinite(rate_before):
+            undistort(scan.buffer, scan.sweep, scan.count, rate_before, self.seconds,
+                      self.stamp_place, out.buffer, 2.0 * rate - rate_before)
+        else:
+            undistort(scan.buffer, scan.sweep, scan.count, rate, self.seconds,
+                      self.stamp_place, out.buffer)
         out.sweep[: scan.count] = scan.sweep[: scan.count]
         out.count = scan.count
         return out
@@ -86,5 +100,7 @@ class SweepMotion:
             return matcher.align_scans(scan, reference, guess, window), scan
         match = matcher.align_scans(self.undistort(scan, turn, turn_interval), reference, guess,
                                     window)
-        turned = self.undistort(scan, between(match.pose, previous), interval)
+        before = (float(turn[2]) / max(turn_interval, self.seconds)
+                  if math.isfinite(turn_interval) and turn_interval > 0.0 else math.nan)
+        turned = self.undistort(scan, between(match.pose, previous), interval, before)
         return matcher.settle(turned, reference, match), turned

@@ -17,13 +17,15 @@ from swarmslam.runtime.sweep_motion import SweepMotion, undistort
 from swarmslam.runtime.warm_up import room_world, scan_at
 
 
-def _as_seen(points, places, seconds, stamp_place, w):
-    """What a robot turning at ``w`` rad/s sees of the stamp-frame ``points``, each at its
-    place in the sweep."""
+def _as_seen(points, places, seconds, stamp_place, w, w_last=None):
+    """What a robot turning at ``w`` rad/s (or at a rate changing evenly from ``w`` at the
+    sweep's first beam to ``w_last`` at its last) sees of the stamp-frame ``points``, each at
+    its place in the sweep."""
+    dw = 0.0 if w_last is None else w_last - w
     seen = np.empty_like(points)
     for i, (p, f) in enumerate(zip(points, places)):
-        pose = np.array([0.0, 0.0, w * (f - stamp_place) * seconds])
-        seen[i] = between(np.r_[p, 0.0], pose)[:2]
+        heading = seconds * (w * (f - stamp_place) + dw * (f * f - stamp_place**2) / 2)
+        seen[i] = between(np.r_[p, 0.0], np.array([0.0, 0.0, heading]))[:2]
     return seen
 
 
@@ -37,6 +39,22 @@ def test_undistort_turns_each_point_to_the_stamps_heading(stamp_place):
     out = np.empty_like(seen)
     undistort(seen, places, len(seen), 2.0, 0.18, stamp_place, out)
     np.testing.assert_allclose(out, truth, atol=1e-12)
+
+
+@pytest.mark.parametrize("stamp_place", [1.0, 0.0, 0.5])
+def test_undistort_follows_a_turn_rate_that_changes_over_the_sweep(stamp_place):
+    """A turn starting within the sweep (0 at its first beam, 3 rad/s at its last): undone at
+    the rate changing so, every point lands where it was; at the steady rate of the same
+    turn, not."""
+    rng = np.random.default_rng(1)
+    truth = rng.uniform(-6, 6, (200, 2))
+    places = np.sort(rng.uniform(0, 1, 200))
+    seen = _as_seen(truth, places, 0.18, stamp_place, 0.0, 3.0)
+    out = np.empty_like(seen)
+    undistort(seen, places, len(seen), 0.0, 0.18, stamp_place, out, 3.0)
+    np.testing.assert_allclose(out, truth, atol=1e-12)
+    undistort(seen, places, len(seen), 1.5, 0.18, stamp_place, out)
+    assert np.max(np.hypot(*(out - truth).T)) > 0.05
 
 
 def test_the_turn_given_is_taken_over_the_interval_or_the_sweep_if_longer():
@@ -59,15 +77,28 @@ def test_the_turn_given_is_taken_over_the_interval_or_the_sweep_if_longer():
     assert SweepMotion(SensorConfig(), 8).undistort(scan, motion, 0.4) is scan  # no sweep
 
 
-def _swept_drive(seconds=12.0, rate=5.5, sweep=1 / 5.5, beams=360):
-    """A robot weaving through a room at 0.3 m/s after a second at rest, turning at up to
-    1.6 rad/s one way then the other (a 3 s period): its scans (a 360° scanner sweeping for
-    ``sweep`` s, stamped at the last beam), true poses and the room's walls."""
+def _weaving(t):
+    """Turning at up to 1.6 rad/s one way then the other (a 3 s period) after a second at
+    rest, at 0.3 m/s."""
+    return (np.where(t < 1.0, 0.0, 1.6 * np.sin(2 * math.pi * (t - 1.0) / 3.0)),
+            np.where(t < 1.0, 0.0, 0.3))
+
+
+def _pivots(t):
+    """Standing, then turning in place at 2 rad/s for 1.5 s, from 1.0 s and from 3.95 s: each
+    turn starts and ends within a sweep (0.18 s from 0.18 s on), as a pivot does."""
+    turning = ((t >= 1.0) & (t < 2.5)) | ((t >= 3.95) & (t < 5.45))
+    return np.where(turning, 2.0, 0.0), np.zeros_like(t)
+
+
+def _swept_drive(seconds=12.0, rate=5.5, sweep=1 / 5.5, beams=360, motion=_weaving):
+    """A robot driving through a room as ``motion`` says (its turn rate and speed over time;
+    default: weaving): its scans (a 360° scanner sweeping for ``sweep`` s, stamped at the last
+    beam), true poses and the room's walls."""
     dt = 0.001
     t = np.arange(0.0, seconds + dt, dt)
-    w = np.where(t < 1.0, 0.0, 1.6 * np.sin(2 * math.pi * (t - 1.0) / 3.0))
+    w, v = motion(t)
     heading = np.concatenate([[0.0], np.cumsum(w[:-1] * dt)])
-    v = np.where(t < 1.0, 0.0, 0.3)
     x = 3.0 + np.concatenate([[0.0], np.cumsum(v[:-1] * np.cos(heading[:-1]) * dt)])
     y = 4.0 + np.concatenate([[0.0], np.cumsum(v[:-1] * np.sin(heading[:-1]) * dt)])
     fine = np.c_[x, y, heading]
@@ -116,6 +147,24 @@ def test_a_weaving_robots_sweep_undistorted_keeps_each_scans_turn(swept, odometr
     untold = _heading_errors(swept, 0.0, odometry)
     assert np.mean(told) < 0.5 * np.mean(untold)
     assert np.max(told) < 0.5 * np.max(untold)
+
+
+@pytest.fixture(scope="module")
+def pivots():
+    return _swept_drive(seconds=7.0, motion=_pivots)
+
+
+@pytest.mark.parametrize("odometry", [True, False])
+def test_a_turn_starting_within_a_sweep_is_undone_as_its_rate_grows(pivots, odometry):
+    """Pivots at 2 rad/s that start and end within a sweep: the second pass undoes the sweep
+    at a rate changing evenly from the last interval's to the one that makes the match's turn,
+    and the scans' turns err less than matched as if the beams were simultaneous (mean step
+    error 1.39 against 1.58° with odometry, 1.48 against 1.73° without). At the match's steady
+    rate, the second pass erred more than that (1.79°, 1.77°): the scan before a pivot starts
+    has not turned, and the turn of the scan that starts it is not steady."""
+    told = _heading_errors(pivots, 1 / 5.5, odometry)
+    untold = _heading_errors(pivots, 0.0, odometry)
+    assert np.mean(told) < 0.9 * np.mean(untold)
 
 
 def _localized_heading_errors(swept, sweep_seconds):
