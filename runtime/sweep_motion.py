@@ -61,26 +61,30 @@ class SweepMotion:
         """The scanner's beams are not simultaneous (a sweep is configured)."""
         return self.seconds > 0.0
 
+    def rate(self, motion, interval: float) -> float:
+        """The turn rate ``motion`` (its turn ``motion[2]``) shows over the ``interval`` s
+        before a scan (rad/s): over the sweep's own length if that is longer (a stamp's
+        jitter: a scanner takes one sweep per scan); NaN when the interval is unknown."""
+        if not math.isfinite(interval) or interval <= 0.0:
+            return math.nan
+        return float(motion[2]) / max(interval, self.seconds)
+
     def undistort(self, scan: PointScan, motion, interval: float,
                   rate_before: float = math.nan) -> PointScan:
         """``scan`` as seen at the robot's heading at its stamp, given ``motion`` (the robot's,
         its turn ``motion[2]`` read) over the ``interval`` s before it; ``scan`` itself when
         the sweep is 0 or the interval unknown. The returned scan is this object's buffer,
-        valid until the next call. An interval shorter than the sweep is a stamp's jitter (a
-        scanner takes one sweep per scan): the sweep's own length is used. The turn is taken
-        at a steady rate, or, given ``rate_before`` (rad/s, the rate of the interval before),
+        valid until the next call. The turn is taken at a steady rate (:meth:`rate`), or, given ``rate_before`` (rad/s, the rate of the interval before),
         at a rate changing evenly from that one at the sweep's first beam to the one that
         makes the same turn: a turn that starts or ends is not steady over a sweep."""
-        if not self.moving or not math.isfinite(interval) or interval <= 0.0:
+        rate = self.rate(motion, interval)
+        if not self.moving or math.isnan(rate):
             return scan
         out = self._out
-        rate = float(motion[2]) / max(interval, self.seconds)
-        if math.isfinite(rate_before):
-            undistort(scan.buffer, scan.sweep, scan.count, rate_before, self.seconds,
-                      self.stamp_place, out.buffer, 2.0 * rate - rate_before)
-        else:
-            undistort(scan.buffer, scan.sweep, scan.count, rate, self.seconds,
-                      self.stamp_place, out.buffer)
+        # (a steady turn: the rate at the first beam is the one at the last, the change 0)
+        first = rate_before if math.isfinite(rate_before) else rate
+        undistort(scan.buffer, scan.sweep, scan.count, first, self.seconds, self.stamp_place,
+                  out.buffer, 2.0 * rate - first)
         out.sweep[: scan.count] = scan.sweep[: scan.count]
         out.count = scan.count
         return out
@@ -100,7 +104,6 @@ class SweepMotion:
             return matcher.align_scans(scan, reference, guess, window), scan
         match = matcher.align_scans(self.undistort(scan, turn, turn_interval), reference, guess,
                                     window)
-        before = (float(turn[2]) / max(turn_interval, self.seconds)
-                  if math.isfinite(turn_interval) and turn_interval > 0.0 else math.nan)
-        turned = self.undistort(scan, between(match.pose, previous), interval, before)
+        turned = self.undistort(scan, between(match.pose, previous), interval,
+                                self.rate(turn, turn_interval))
         return matcher.settle(turned, reference, match), turned
