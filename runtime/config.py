@@ -364,6 +364,14 @@ class FrontEndConfig(Section):
         3.0, "rad/s: a lost match that no prior recovers, its odometry reading taken some time "
         "before the scan, is sought again over every heading the robot may have turned to "
         "since the last scan turning at most this fast (0: not)", ge=0, le=20.0)
+    recovery_heading_step: float = _setting(
+        0.05236, "rad (3°): a lost match sought again is also settled by the compass search "
+        "alone, on the fine field, from headings this far apart across each box it is sought "
+        "in (0: not); see recovery_seek_ratio", ge=0, le=math.pi)
+    recovery_seek_ratio: float = _setting(
+        0.9, "the compass search's match replaces the swarm's where its λ is below this "
+        "share of the swarm's: a basin the swarm missed, not the same one polished",
+        gt=0, le=1)
     stale_motion: bool = _setting(
         True, "a reading that came again unchanged (stale), within as many scans as the last "
         "new one took to come, predicts the translation per scan that reading showed, not "
@@ -974,6 +982,7 @@ EXPERT_FIELDS = frozenset({
     "input.jump_slack", "input.turn_slack",
     "front_end.track_inlier_slope", "front_end.curvature_step", "front_end.window_margin",
     "front_end.stale_turn_window", "front_end.pivot_search_rate", "front_end.stale_motion",
+    "front_end.recovery_heading_step", "front_end.recovery_seek_ratio",
     "front_end.periodic_odometry_ratio", "front_end.period_restart_gaps",
     "front_end.degenerate_information",
     "front_end.odometry_gate_share", "front_end.odometry_gate_fit",

@@ -148,6 +148,7 @@ class FrontEnd:
         self.overruled_odometry = 0  # matches the gate refused that the scans upheld
         self.stale = False  # the scan being tracked brought odometry's previous reading again
         self.rescued_matches = 0  # lost matches found again around the scans' own motion
+        self.sought_matches = 0  # of those sought again, the compass search's from headings
         self.degenerate_matches = 0  # matches held to the prediction along a direction
         self.degeneracy = None  # the last match's (swarmslam.runtime.degeneracy), when measured
         # The scan tracked last, and its surfaces listed once a match was checked against it:
@@ -571,7 +572,7 @@ class FrontEnd:
         half = max(min(c.pivot_search_rate * interval, math.pi),
                    abs(float(wrap_angle(guess[2] - self.rel[2]))) + g[2])
         self.matcher.keep_stream()
-        kept = self.degeneracy, self.degenerate_matches
+        kept = self.degeneracy, self.degenerate_matches, self.sought_matches
         found = self._best_overruling(scan, (prior,), np.array([g[0], g[1], half]), guess, step,
                                       stale=True)
         turn = float((g if window is None else window)[2])
@@ -579,9 +580,25 @@ class FrontEnd:
                                    for p in (guess, *searched)):
             # nothing kept: the run goes on as without the search
             self.matcher.rewind_stream()
-            self.degeneracy, self.degenerate_matches = kept
+            self.degeneracy, self.degenerate_matches, self.sought_matches = kept
             return None, None
         return found
+
+    def _sought_match(self, scan, prior, window) -> np.ndarray:
+        """A lost match sought again around ``prior`` (a box of half-widths ``window``, None:
+        the guess window): Alg. 5's, or the compass search's settled from headings
+        ``recovery_heading_step`` apart across the same box where it fits clearly better (λ
+        below ``recovery_seek_ratio`` of Alg. 5's). The swarm finds its basin on the coarse
+        field, which people crowding a pivot can mislead; the fine field tells the turn
+        (docs/method.md §6.1, "Recovery")."""
+        c = self.config.front_end
+        match = self.matcher.align_scans(scan, self.reference, prior, window)
+        if c.recovery_heading_step > 0:
+            sought = self.matcher.seek_headings(scan, self.reference, c.recovery_heading_step)
+            if sought.error < c.recovery_seek_ratio * match.error:
+                self.sought_matches += 1
+                return sought.pose
+        return match.pose
 
     def _best_overruling(self, scan, priors, window, guess, step, stale=None):
         """Of the matches sought around each of ``priors`` (boxes of half-widths ``window``,
@@ -591,7 +608,7 @@ class FrontEnd:
         c = self.config.front_end
         best, best_fit, degeneracy = None, -1.0, None
         for prior in priors:
-            match = self.matcher.align_scans(scan, self.reference, prior, window).pose
+            match = self._sought_match(scan, prior, window)
             inside_box = not self.matcher.at_box_edge(match, c.window_margin)
             if c.degeneracy_ratio > 0:  # along a degenerate axis, odometry's position stands
                 match = self._constrained(scan, match, guess)

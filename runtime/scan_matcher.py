@@ -227,6 +227,28 @@ def _settle(settings, field, meta, pts, n, box, x, y, t, out):
 
 
 @njit(cache=True)
+def _settle_headings(settings, field, meta, pts, n, box, step, trial, out):
+    """:func:`_settle` from headings about ``step`` apart across ``box``, each at its centre
+    position: ``out`` gets the lowest λ settled at, and its pose (``trial``: scratch)."""
+    span = box[1, 2] - box[0, 2]
+    starts = max(1, int(math.ceil(span / step)))
+    x = 0.5 * (box[0, 0] + box[1, 0])
+    y = 0.5 * (box[0, 1] + box[1, 1])
+    out[R_LAMBDA] = np.inf
+    evaluations = 0.0
+    for k in range(starts):
+        _settle(settings, field, meta, pts, n, box, x, y, box[0, 2] + (k + 0.5) * span / starts,
+                trial)
+        evaluations += trial[R_EVALUATIONS]
+        if trial[R_LAMBDA] < out[R_LAMBDA]:
+            out[R_X] = trial[R_X]
+            out[R_Y] = trial[R_Y]
+            out[R_T] = trial[R_T]
+            out[R_LAMBDA] = trial[R_LAMBDA]
+    out[R_EVALUATIONS] = evaluations
+
+
+@njit(cache=True)
 def _stride(n, stride, points):
     """Every how many of ``n`` points a stage scores: ``stride``, or more so that it scores at
     most about ``points`` of them (0: ``stride``)."""
@@ -364,6 +386,7 @@ class ScanMatcher:
         self.settings = s
         self._out = np.zeros(N_OUT)
         self._settled = np.zeros(N_OUT)
+        self._sought = np.zeros(N_OUT)  # (seek_headings)
         self._box = np.zeros((2, 3))
         self._hessian = np.zeros((3, 3))
         self._kept_rng = self.optimizer.ws.rng.copy()  # (keep_stream)
@@ -584,6 +607,23 @@ class ScanMatcher:
                            scan_error=float(out[R_LAMBDA]), used_map=match.used_map,
                            iterations=match.iterations,
                            evaluations=match.evaluations + int(out[R_EVALUATIONS]))
+
+    def seek_headings(self, scan: PointScan, reference: ReferenceMaps, step: float
+                      ) -> MatchResult:
+        """The compass search alone, settled from headings ``step`` rad apart across the last
+        search box (each at its centre position) on the fine field: the lowest λ it reaches.
+        Alg. 5's swarm looks for the basin on the coarse field, which on a scan crowded by
+        people can score a wrong basin lower than the true one, and its local stages refine
+        only the basin it chose (docs/method.md §6.1, "Recovery"). Without a swarm, and
+        without counting towards the threshold."""
+        if not step > 0.0:
+            raise ValueError(f"heading step must be positive, got {step}")
+        out = self._sought
+        _settle_headings(self.settings, reference.field, reference.meta, scan.buffer,
+                         scan.count, self._box, float(step), self._settled, out)
+        return MatchResult(pose=out[R_X : R_T + 1].copy(), error=float(out[R_LAMBDA]),
+                           scan_error=float(out[R_LAMBDA]), used_map=False, iterations=0,
+                           evaluations=int(out[R_EVALUATIONS]))
 
     def at_box_edge(self, pose, margin: float) -> bool:
         """The last match's ``pose`` ended within ``margin`` (a share of the half-width) of its

@@ -311,6 +311,7 @@ def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, s
         "matches_degenerate": slam.front_end.degenerate_matches,
         "matches_disowned": slam.front_end.disowned_matches,
         "matches_held_to_odometry": slam.front_end.held_to_odometry,
+        "matches_sought": slam.front_end.sought_matches,
         "odometry_seen": odometry_seen(slam.front_end, poses),
         **timing,
         "status": run_status(runtime.status, log, runtime),

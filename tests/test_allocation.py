@@ -5,7 +5,6 @@ import json
 import os
 import subprocess
 import sys
-import textwrap
 import tracemalloc
 
 import numpy as np
@@ -42,7 +41,8 @@ def traced_growth(run, warm: int, measured: int) -> tuple[int, int]:
     return after - before, peak - before
 
 
-def test_no_traced_memory_growth_per_match_after_warm_up():
+def traced_matches() -> tuple[int, int]:
+    """:func:`traced_growth` of 5,000 matches after 4,000."""
     # A small budget keeps the test quick; the per-match path is the same at any budget.
     config = MatcherConfig(swarm=SwarmConfig(max_evaluations=100), refine_evaluations=40,
                            scan_to_map=True)
@@ -56,14 +56,11 @@ def test_no_traced_memory_growth_per_match_after_warm_up():
             matcher.build_reference(ref, reference)
             matcher.align_into(cur, reference, None, out)
 
-    grown, peak = traced_growth(match, 4000, 5000)  # warm-up: compilation, dispatch caches
-    assert grown <= 256, f"traced memory grew {grown} B over 5000 matches"
-    # Transient objects (the call's arguments) exist, but never more than a few at a time.
-    assert peak < 4096, peak
+    return traced_growth(match, 4000, 5000)  # warm-up: compilation, dispatch caches
 
 
-def test_no_traced_memory_growth_per_undistorted_sweep_after_warm_up():
-    """A sweep's two passes (runtime/sweep_motion.py) and the settled match: nothing kept."""
+def traced_sweeps() -> tuple[int, int]:
+    """:func:`traced_growth` of 3,000 sweeps undone, matched and settled, after 2,000."""
     matcher = ScanMatcher(MatcherConfig(swarm=SwarmConfig(max_evaluations=100),
                                         refine_evaluations=40))
     sweep = SweepMotion(SensorConfig(sweep_seconds=0.18), 400)
@@ -78,34 +75,80 @@ def test_no_traced_memory_growth_per_undistorted_sweep_after_warm_up():
             match = matcher.align_scans(first, reference, motion)
             matcher.settle(sweep.undistort(cur, match.pose, 0.18), reference, match)
 
-    grown, peak = traced_growth(undistort_and_settle, 2000, 3000)
+    return traced_growth(undistort_and_settle, 2000, 3000)
+
+
+def traced_headings_sought() -> tuple[int, int]:
+    """:func:`traced_growth` of 1,000 lost matches sought again from headings 3° apart across
+    a ±0.6 rad box (the front end's recovery), after 500."""
+    matcher = ScanMatcher(MatcherConfig(swarm=SwarmConfig(max_evaluations=100),
+                                        refine_evaluations=40))
+    ref, cur = scans()
+    reference = matcher.new_reference()
+    matcher.build_reference(ref, reference)
+    guess, window = np.array([0.4, 0.2, 0.0]), np.array([0.3, 0.3, 0.6])
+
+    def seek(n):
+        for _ in range(n):
+            matcher.align_scans(cur, reference, guess, window)
+            matcher.seek_headings(cur, reference, np.radians(3.0))
+
+    return traced_growth(seek, 500, 1000)
+
+
+def in_fresh_interpreter(call: str, env=None):
+    """``call`` (a function of this module) run in a new interpreter; its result, from JSON.
+    tracemalloc counts every thread's allocations, pytest-xdist's messaging thread among them,
+    and caches other tests filled or left unfilled in this process: a measurement here would
+    depend on which tests ran first and on the workers' traffic."""
+    code = (f"import json, sys; sys.path.insert(0, {os.path.dirname(__file__)!r}); "
+            f"import test_allocation as t; print(json.dumps(t.{call}()))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          env=env, cwd=os.path.dirname(os.path.dirname(__file__)), timeout=600)
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def test_no_traced_memory_growth_per_match_after_warm_up():
+    grown, peak = in_fresh_interpreter("traced_matches")
+    assert grown <= 256, f"traced memory grew {grown} B over 5000 matches"
+    # Transient objects (the call's arguments) exist, but never more than a few at a time.
+    assert peak < 4096, peak
+
+
+def test_no_traced_memory_growth_per_undistorted_sweep_after_warm_up():
+    """A sweep's two passes (runtime/sweep_motion.py) and the settled match: nothing kept."""
+    grown, peak = in_fresh_interpreter("traced_sweeps")
     assert grown <= 256, f"traced memory grew {grown} B over 3000 sweeps"
     assert peak < 4096, peak
 
 
-NRT_PROBE = textwrap.dedent(
-    """
-    import json, sys
-    import numpy as np
+def test_no_traced_memory_growth_per_heading_search_after_warm_up():
+    grown, peak = in_fresh_interpreter("traced_headings_sought")
+    assert grown <= 256, f"traced memory grew {grown} B over 1000 searches"
+    assert peak < 4096, peak
+
+
+def nrt_per_call() -> dict:
+    """Numba's runtime allocations and frees per call (NUMBA_NRT_STATS must be set before
+    numba starts): a match at two budgets, and the match's curvature."""
     from numba.core.runtime import rtsys
-    sys.path.insert(0, {tests!r})
-    from test_allocation import scans
-    from swarmslam.runtime.optimizers import SwarmConfig
-    from swarmslam.runtime.scan_matcher import N_OUT, MatcherConfig, ScanMatcher
 
     ref, cur = scans()
     out = np.zeros(N_OUT)
-    per_call = {{}}
+    per_call = {}
     for budget in (100, 3000):
         m = ScanMatcher(MatcherConfig(swarm=SwarmConfig(max_evaluations=budget), scan_to_map=True))
         r = m.new_reference()
         for _ in range(3):
-            m.build_reference(ref, r); m.align_into(cur, r, None, out)
+            m.build_reference(ref, r)
+            m.align_into(cur, r, None, out)
         s0 = rtsys.get_allocation_stats()
         for _ in range(20):
-            m.build_reference(ref, r); m.align_into(cur, r, None, out)
+            m.build_reference(ref, r)
+            m.align_into(cur, r, None, out)
         s1 = rtsys.get_allocation_stats()
-        per_call[budget] = [(s1.alloc - s0.alloc) / 20, (s1.free - s0.free) / 20]
+        per_call[str(budget)] = [(s1.alloc - s0.alloc) / 20, (s1.free - s0.free) / 20]
     pose, step = np.zeros(3), (0.05, 0.01)
     m.curvature(cur, r, pose, step)  # the degeneracy test's Hessian, every tick
     s0 = rtsys.get_allocation_stats()
@@ -113,19 +156,11 @@ NRT_PROBE = textwrap.dedent(
         m.curvature(cur, r, pose, step)
     s1 = rtsys.get_allocation_stats()
     per_call["curvature"] = [(s1.alloc - s0.alloc) / 20, (s1.free - s0.free) / 20]
-    print(json.dumps(per_call))
-    """
-)
+    return per_call
 
 
 def test_compiled_code_allocation_does_not_scale_with_work():
-    # NUMBA_NRT_STATS must be set before numba starts: run in a fresh interpreter.
-    env = dict(os.environ, NUMBA_NRT_STATS="1")
-    code = NRT_PROBE.format(tests=os.path.dirname(__file__))
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
-                          cwd=os.path.dirname(os.path.dirname(__file__)), timeout=600)
-    assert done.returncode == 0, done.stderr
-    per_call = json.loads(done.stdout.strip().splitlines()[-1])
+    per_call = in_fresh_interpreter("nrt_per_call", dict(os.environ, NUMBA_NRT_STATS="1"))
     small, large = per_call["100"], per_call["3000"]
     # The only NRT allocations are the array arguments' wrappers at the Python boundary
     # (one per array argument, freed on return): the same count for 30x the evaluations,
