@@ -214,6 +214,30 @@ def test_polish_settles_a_short_swarm_in_its_basin():
                                       *moved, KERNELS["cauchy"]) >= p.error
 
 
+@pytest.mark.parametrize("turn", [-0.5, -0.2, 0.25, 0.5])
+def test_seek_headings_finds_the_turn_anywhere_in_the_box(turn):
+    """The compass search settled from headings 3° apart across the last box (a lost match
+    sought again, docs/method.md §6.1 "Recovery") reaches the turn wherever it lies in a
+    ±0.6 rad box; from the box's centre alone it reaches only the turns near it."""
+    motion = np.array([0.3, -0.1, turn])
+    ref, cur = scans_for(motion, 0.02)
+    m = ScanMatcher(MatcherConfig(), seed=0)
+    reference = m.build_reference(ref)
+    m.set_search_box(np.array([0.3, -0.1, 0.0]), np.array([0.3, 0.3, 0.6]))
+    sought = m.seek_headings(cur, reference, np.radians(3.0))
+    e = between(sought.pose, motion)
+    assert np.hypot(e[0], e[1]) < 0.005 and abs(e[2]) < np.radians(0.15), sought
+    assert sought.evaluations > 20 * 23  # 23 starts, each settled by steps
+    centre_only = m.seek_headings(cur, reference, 1.2)  # one start: the box's centre
+    e = between(centre_only.pose, motion)
+    if abs(turn) > 0.4:  # beyond the centre's basin
+        assert abs(e[2]) > np.radians(5.0) and centre_only.error > 2 * sought.error
+    else:
+        assert abs(e[2]) < np.radians(0.15)
+    with pytest.raises(ValueError):
+        m.seek_headings(cur, reference, 0.0)
+
+
 def test_a_dense_scan_is_scored_on_a_bounded_share_of_its_points():
     """matcher.global_points / refine_points: a 0.25° scan (1,440 beams) is matched on about
     as many points per stage as a 1° one, as accurately; a scan within the bounds is matched
