@@ -367,7 +367,8 @@ class FrontEndConfig(Section):
     recovery_heading_step: float = _setting(
         0.05236, "rad (3°): a lost match sought again is also settled by the compass search "
         "alone, on the fine field, from headings this far apart across each box it is sought "
-        "in (0: not); see recovery_seek_ratio", ge=0, le=math.pi)
+        "in (0: not; else at least 0.005 rad, at most 1,257 starts over a whole turn); see "
+        "recovery_seek_ratio", ge=0, le=math.pi)
     recovery_seek_ratio: float = _setting(
         0.9, "the compass search's match replaces the swarm's where its λ is below this "
         "share of the swarm's: a basin the swarm missed, not the same one polished",
@@ -429,6 +430,13 @@ class FrontEndConfig(Section):
     between_min_pairs: int = _setting(
         30, "pairs of scans each kind of pair needs before the noise is estimated from it",
         ge=3)
+
+    def __post_init__(self):
+        super().__post_init__()
+        # (a heading search's starts are bounded: a whole turn at this step is 1,257 of them)
+        if 0.0 < self.recovery_heading_step < 0.005:
+            raise ConfigError("front_end.recovery_heading_step: must be 0 or >= 0.005, got "
+                              f"{self.recovery_heading_step}")
 
 
 @dataclass(frozen=True)

@@ -172,13 +172,14 @@ def _take(ws, out, lam):
 
 
 @njit(cache=True)
-def _polish(settings, field, meta, pts, n, box, out):
+def _polish(settings, field, meta, pts, n, box, out, stride=1):
     """Settle the swarm's match in its basin by a compass search on the fine field with all
     points (docs/method.md §3): each coordinate in turn is stepped both ways, a step that
     lowers λ taken; after a sweep with none the steps are halved, and the search ends when
     the steps halved ``S_POLISH_HALVINGS`` times gain nothing, or after ``S_POLISH_EVALS``
     evaluations. It stays in the search ``box``, as the swarm does. The swarm finds the
-    basin; its samples leave the last centimetre to chance, which a descent does not."""
+    basin; its samples leave the last centimetre to chance, which a descent does not.
+    (``stride``: every how many points it scores, ``out``'s λ then on those alone.)"""
     halvings = int(settings[S_POLISH_HALVINGS])
     budget = int(settings[S_POLISH_EVALS])
     kernel = int(settings[S_KERNEL])
@@ -198,7 +199,7 @@ def _polish(settings, field, meta, pts, n, box, out):
                 x = moved_to if d == 0 else out[R_X]
                 y = moved_to if d == 1 else out[R_Y]
                 t = moved_to if d == 2 else out[R_T]
-                value = scan_to_scan_error(field, meta, pts, n, 1, x, y, t, kernel)
+                value = scan_to_scan_error(field, meta, pts, n, stride, x, y, t, kernel)
                 evaluations += 1
                 if value < best:
                     best = value
@@ -228,24 +229,35 @@ def _settle(settings, field, meta, pts, n, box, x, y, t, out):
 
 @njit(cache=True)
 def _settle_headings(settings, field, meta, pts, n, box, step, trial, out):
-    """:func:`_settle` from headings about ``step`` apart across ``box``, each at its centre
-    position: ``out`` gets the lowest λ settled at, and its pose (``trial``: scratch)."""
+    """The compass search from headings about ``step`` apart across ``box``, each at its
+    centre position, on about ``S_REFINE_POINTS`` of the points (a dense scanner costs what a
+    1° one does); the lowest settled again on all of them: ``out`` gets its pose and λ
+    (``trial``: scratch)."""
+    kernel = int(settings[S_KERNEL])
+    stride = _stride(n, 1, settings[S_REFINE_POINTS])
     span = box[1, 2] - box[0, 2]
     starts = max(1, int(math.ceil(span / step)))
     x = 0.5 * (box[0, 0] + box[1, 0])
     y = 0.5 * (box[0, 1] + box[1, 1])
     out[R_LAMBDA] = np.inf
-    evaluations = 0.0
+    out[R_EVALUATIONS] = 0.0
     for k in range(starts):
-        _settle(settings, field, meta, pts, n, box, x, y, box[0, 2] + (k + 0.5) * span / starts,
-                trial)
-        evaluations += trial[R_EVALUATIONS]
+        trial[R_X] = x
+        trial[R_Y] = y
+        trial[R_T] = box[0, 2] + (k + 0.5) * span / starts
+        trial[R_LAMBDA] = scan_to_scan_error(field, meta, pts, n, stride, x, y, trial[R_T],
+                                             kernel)
+        trial[R_EVALUATIONS] = 1.0
+        _polish(settings, field, meta, pts, n, box, trial, stride)
+        out[R_EVALUATIONS] += trial[R_EVALUATIONS]
         if trial[R_LAMBDA] < out[R_LAMBDA]:
             out[R_X] = trial[R_X]
             out[R_Y] = trial[R_Y]
             out[R_T] = trial[R_T]
             out[R_LAMBDA] = trial[R_LAMBDA]
-    out[R_EVALUATIONS] = evaluations
+    evaluations = out[R_EVALUATIONS]
+    _settle(settings, field, meta, pts, n, box, out[R_X], out[R_Y], out[R_T], out)
+    out[R_EVALUATIONS] += evaluations
 
 
 @njit(cache=True)
@@ -611,7 +623,8 @@ class ScanMatcher:
     def seek_headings(self, scan: PointScan, reference: ReferenceMaps, step: float
                       ) -> MatchResult:
         """The compass search alone, settled from headings ``step`` rad apart across the last
-        search box (each at its centre position) on the fine field: the lowest λ it reaches.
+        search box (each at its centre position) on the fine field, on about
+        ``refine_points`` of the points; the lowest settled again on all: its pose and λ.
         Alg. 5's swarm looks for the basin on the coarse field, which on a scan crowded by
         people can score a wrong basin lower than the true one, and its local stages refine
         only the basin it chose (docs/method.md §6.1, "Recovery"). Without a swarm, and

@@ -76,6 +76,8 @@ def test_none_and_integers_where_floats_are_expected(tmp_path):
     ("[matcher.swarm]\noptimizer = \"gwo\"\n", r"matcher.swarm.optimizer: must be one of"),
     ("[matcher]\nguess_window = [0.3, 0.3]\n", r"matcher.guess_window: needs 3 values"),
     ("[runtime]\nrate_hz = 100\ntick_budget = 0.05\n", r"runtime.tick_budget: must fit the period"),
+    ("[front_end]\nrecovery_heading_step = 0.001\n",
+     r"front_end.recovery_heading_step: must be 0 or >= 0.005"),
     ("[front_end]\nnode_distance = 0.4\n[[oops\n", r"mine.toml: not valid TOML"),
     ("[front_end]\ninformation = true\n", r"front_end.information: must be a string"),
     ("[matcher]\nscan_to_map = 1\n", r"matcher.scan_to_map: must be true or false"),

@@ -215,25 +215,35 @@ def test_polish_settles_a_short_swarm_in_its_basin():
 
 
 @pytest.mark.parametrize("turn", [-0.5, -0.2, 0.25, 0.5])
-def test_seek_headings_finds_the_turn_anywhere_in_the_box(turn):
+@pytest.mark.parametrize("step_deg", [1.0, 0.25])
+def test_seek_headings_finds_the_turn_anywhere_in_the_box(turn, step_deg):
     """The compass search settled from headings 3° apart across the last box (a lost match
     sought again, docs/method.md §6.1 "Recovery") reaches the turn wherever it lies in a
-    ±0.6 rad box; from the box's centre alone it reaches only the turns near it."""
+    ±0.6 rad box, for a 1° scan and a 0.25° one (whose starts score a stride of the points);
+    its λ is λ on every point, where no step of the finest size lowers it."""
+    angles = np.deg2rad(np.arange(-180, 180, step_deg))
+    world = room_world(seed=0)
+    rng = np.random.default_rng(0)
     motion = np.array([0.3, -0.1, turn])
-    ref, cur = scans_for(motion, 0.02)
+    ref, cur = (PointScan.from_ranges(scan_at(world, pose, angles, 12.0, 0.02, rng), angles,
+                                      0.05, 12.0) for pose in (START, pose_after(START, motion)))
     m = ScanMatcher(MatcherConfig(), seed=0)
     reference = m.build_reference(ref)
     m.set_search_box(np.array([0.3, -0.1, 0.0]), np.array([0.3, 0.3, 0.6]))
     sought = m.seek_headings(cur, reference, np.radians(3.0))
     e = between(sought.pose, motion)
     assert np.hypot(e[0], e[1]) < 0.005 and abs(e[2]) < np.radians(0.15), sought
-    assert sought.evaluations > 20 * 23  # 23 starts, each settled by steps
-    centre_only = m.seek_headings(cur, reference, 1.2)  # one start: the box's centre
-    e = between(centre_only.pose, motion)
-    if abs(turn) > 0.4:  # beyond the centre's basin
-        assert abs(e[2]) > np.radians(5.0) and centre_only.error > 2 * sought.error
-    else:
-        assert abs(e[2]) < np.radians(0.15)
+    assert sought.evaluations > 23 * 10  # 23 starts, each settled by steps
+    kernel = KERNELS["cauchy"]
+    assert sought.error == scan_to_scan_error(reference.field, reference.meta, cur.buffer,
+                                              cur.count, 1, *sought.pose, kernel)
+    step_xy, step_t = (s / 2**m.config.polish_halvings for s in m.config.polish_step)
+    for d, step in ((0, step_xy), (1, step_xy), (2, step_t)):
+        for sign in (1, -1):
+            moved = sought.pose.copy()
+            moved[d] += sign * step
+            assert scan_to_scan_error(reference.field, reference.meta, cur.buffer, cur.count,
+                                      1, *moved, kernel) >= sought.error
     with pytest.raises(ValueError):
         m.seek_headings(cur, reference, 0.0)
 
