@@ -631,6 +631,10 @@ class ScanMatcher:
         without counting towards the threshold."""
         if not step > 0.0:
             raise ValueError(f"heading step must be positive, got {step}")
+        if scan.count == 0:
+            raise ValueError("current scan is empty")
+        if not reference.ready:
+            raise ValueError("reference maps were never built (call build_reference first)")
         out = self._sought
         _settle_headings(self.settings, reference.field, reference.meta, scan.buffer,
                          scan.count, self._box, float(step), self._settled, out)
