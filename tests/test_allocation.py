@@ -8,6 +8,7 @@ import sys
 import tracemalloc
 
 import numpy as np
+from numba.core.runtime import rtsys
 
 from swarmslam.runtime.config import SensorConfig
 from swarmslam.runtime.optimizers import SwarmConfig
@@ -132,8 +133,6 @@ def test_no_traced_memory_growth_per_heading_search_after_warm_up():
 def nrt_per_call() -> dict:
     """Numba's runtime allocations and frees per call (NUMBA_NRT_STATS must be set before
     numba starts): a match at two budgets, and the match's curvature."""
-    from numba.core.runtime import rtsys
-
     ref, cur = scans()
     out = np.zeros(N_OUT)
     per_call = {}
