@@ -38,6 +38,11 @@ SCHEDULES = ("budgeted", "lockstep")
 SOLVERS = ("ldl", "superlu")
 
 
+# The finest step between a heading search's starts (rad): a whole turn is then 1,257 starts,
+# a bound on the search's work (ScanMatcher.seek_headings, front_end.recovery_heading_step).
+MIN_HEADING_STEP = 0.005
+
+
 class ConfigError(ValueError):
     """A configuration value or file that cannot be used; the message names the key."""
 
@@ -433,10 +438,9 @@ class FrontEndConfig(Section):
 
     def __post_init__(self):
         super().__post_init__()
-        # (a heading search's starts are bounded: a whole turn at this step is 1,257 of them)
-        if 0.0 < self.recovery_heading_step < 0.005:
-            raise ConfigError("front_end.recovery_heading_step: must be 0 or >= 0.005, got "
-                              f"{self.recovery_heading_step}")
+        if 0.0 < self.recovery_heading_step < MIN_HEADING_STEP:
+            raise ConfigError("front_end.recovery_heading_step: must be 0 or >= "
+                              f"{MIN_HEADING_STEP}, got {self.recovery_heading_step}")
 
 
 @dataclass(frozen=True)

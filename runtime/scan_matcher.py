@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from swarmslam.runtime.config import MatcherConfig
+from swarmslam.runtime.config import MIN_HEADING_STEP, MatcherConfig
 from swarmslam.runtime.distance_field import (N_META, N_SURFACE, SPAN_ROWS,
                                                build_distance_field,
                                                list_surfaces)
@@ -629,8 +629,8 @@ class ScanMatcher:
         people can score a wrong basin lower than the true one, and its local stages refine
         only the basin it chose (docs/method.md §6.1, "Recovery"). Without a swarm, and
         without counting towards the threshold."""
-        if not step > 0.0:
-            raise ValueError(f"heading step must be positive, got {step}")
+        if not step >= MIN_HEADING_STEP:  # (NaN too: the starts are bounded)
+            raise ValueError(f"heading step must be at least {MIN_HEADING_STEP} rad, got {step}")
         if scan.count == 0:
             raise ValueError("current scan is empty")
         if not reference.ready:

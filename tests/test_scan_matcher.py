@@ -244,8 +244,9 @@ def test_seek_headings_finds_the_turn_anywhere_in_the_box(turn, step_deg):
             moved[d] += sign * step
             assert scan_to_scan_error(reference.field, reference.meta, cur.buffer, cur.count,
                                       1, *moved, kernel) >= sought.error
-    with pytest.raises(ValueError, match="step must be positive"):
-        m.seek_headings(cur, reference, 0.0)
+    for step in (0.0, 0.001, np.nan):  # (its starts are bounded)
+        with pytest.raises(ValueError, match="step must be at least"):
+            m.seek_headings(cur, reference, step)
     with pytest.raises(ValueError, match="empty"):
         m.seek_headings(PointScan(8), reference, np.radians(3.0))
     with pytest.raises(ValueError, match="never built"):
