@@ -572,43 +572,45 @@ class FrontEnd:
         half = max(min(c.pivot_search_rate * interval, math.pi),
                    abs(float(wrap_angle(guess[2] - self.rel[2]))) + g[2])
         self.matcher.keep_stream()
-        kept = self.degeneracy, self.degenerate_matches, self.sought_matches
+        kept = self.degeneracy, self.degenerate_matches
+        # (no heading search here: over every heading a building's right angles offer wrong
+        # basins the fine field scores lower, docs/experiments/2026-11-30-recovery-headings.md)
         found = self._best_overruling(scan, (prior,), np.array([g[0], g[1], half]), guess, step,
-                                      stale=True)
+                                      stale=True, seek=False)
         turn = float((g if window is None else window)[2])
         if found[0] is None or any(abs(float(wrap_angle(found[0][2] - p[2]))) <= turn
                                    for p in (guess, *searched)):
             # nothing kept: the run goes on as without the search
             self.matcher.rewind_stream()
-            self.degeneracy, self.degenerate_matches, self.sought_matches = kept
+            self.degeneracy, self.degenerate_matches = kept
             return None, None
         return found
 
-    def _sought_match(self, scan, prior, window) -> np.ndarray:
+    def _sought_match(self, scan, prior, window, seek: bool = True) -> np.ndarray:
         """A lost match sought again around ``prior`` (a box of half-widths ``window``, None:
         the guess window): Alg. 5's, or the compass search's settled from headings
         ``recovery_heading_step`` apart across the same box where it fits clearly better (λ
         below ``recovery_seek_ratio`` of Alg. 5's). The swarm finds its basin on the coarse
         field, which people crowding a pivot can mislead; the fine field tells the turn
-        (docs/method.md §6.1, "Recovery")."""
+        (docs/method.md §6.1, "Recovery"). ``seek`` False: Alg. 5's alone."""
         c = self.config.front_end
         match = self.matcher.align_scans(scan, self.reference, prior, window)
-        if c.recovery_heading_step > 0:
+        if seek and c.recovery_heading_step > 0:
             sought = self.matcher.seek_headings(scan, self.reference, c.recovery_heading_step)
             if sought.error < c.recovery_seek_ratio * match.error:
                 self.sought_matches += 1
                 return sought.pose
         return match.pose
 
-    def _best_overruling(self, scan, priors, window, guess, step, stale=None):
+    def _best_overruling(self, scan, priors, window, guess, step, stale=None, seek=True):
         """Of the matches sought around each of ``priors`` (boxes of half-widths ``window``,
-        None: the guess window), the best fitting that overrules odometry's prediction
-        ``guess`` (:meth:`_overrules`, judged as after a ``stale`` reading if given): ``(match,
-        degeneracy)``, the match None when none does."""
+        None: the guess window; :meth:`_sought_match`, by ``seek``), the best fitting that
+        overrules odometry's prediction ``guess`` (:meth:`_overrules`, judged as after a
+        ``stale`` reading if given): ``(match, degeneracy)``, the match None when none does."""
         c = self.config.front_end
         best, best_fit, degeneracy = None, -1.0, None
         for prior in priors:
-            match = self._sought_match(scan, prior, window)
+            match = self._sought_match(scan, prior, window, seek)
             inside_box = not self.matcher.at_box_edge(match, c.window_margin)
             if c.degeneracy_ratio > 0:  # along a degenerate axis, odometry's position stands
                 match = self._constrained(scan, match, guess)
