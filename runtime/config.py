@@ -370,10 +370,9 @@ class FrontEndConfig(Section):
         "before the scan, is sought again over every heading the robot may have turned to "
         "since the last scan turning at most this fast (0: not)", ge=0, le=20.0)
     recovery_heading_step: float = _setting(
-        0.05236, "rad (3°): a lost match sought again is also settled by the compass search "
-        "alone, on the fine field, from headings this far apart across each box it is sought "
-        "in (0: not; else at least 0.005 rad, at most 1,257 starts over a whole turn); see "
-        "recovery_seek_ratio", ge=0, le=math.pi)
+        0.05236, "rad (3°): a lost match sought again around a prior is also settled by the "
+        "compass search alone, on the fine field, from headings this far apart across the "
+        "box (0: not; else at least 0.005 rad); see recovery_seek_ratio", ge=0, le=math.pi)
     recovery_seek_ratio: float = _setting(
         0.9, "the compass search's match replaces the swarm's where its λ is below this "
         "share of the swarm's: a basin the swarm missed, not the same one polished",
