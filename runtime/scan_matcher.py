@@ -217,14 +217,16 @@ def _polish(settings, field, meta, pts, n, box, out, stride=1):
 
 
 @njit(cache=True)
-def _settle(settings, field, meta, pts, n, box, x, y, t, out):
-    """:func:`_polish` from ``(x, y, t)``: ``out`` gets the pose it settles at and its λ."""
+def _settle(settings, field, meta, pts, n, box, x, y, t, out, stride=1):
+    """:func:`_polish` from ``(x, y, t)``: ``out`` gets the pose it settles at and its λ
+    (on every ``stride``-th point)."""
     out[R_X] = x
     out[R_Y] = y
     out[R_T] = t
-    out[R_LAMBDA] = scan_to_scan_error(field, meta, pts, n, 1, x, y, t, int(settings[S_KERNEL]))
+    out[R_LAMBDA] = scan_to_scan_error(field, meta, pts, n, stride, x, y, t,
+                                       int(settings[S_KERNEL]))
     out[R_EVALUATIONS] = 1.0
-    _polish(settings, field, meta, pts, n, box, out)
+    _polish(settings, field, meta, pts, n, box, out, stride)
 
 
 @njit(cache=True)
@@ -233,7 +235,6 @@ def _settle_headings(settings, field, meta, pts, n, box, step, trial, out):
     centre position, on about ``S_REFINE_POINTS`` of the points (a dense scanner costs what a
     1° one does); the lowest settled again on all of them: ``out`` gets its pose and λ
     (``trial``: scratch)."""
-    kernel = int(settings[S_KERNEL])
     stride = _stride(n, 1, settings[S_REFINE_POINTS])
     span = box[1, 2] - box[0, 2]
     starts = max(1, int(math.ceil(span / step)))
@@ -242,13 +243,8 @@ def _settle_headings(settings, field, meta, pts, n, box, step, trial, out):
     out[R_LAMBDA] = np.inf
     out[R_EVALUATIONS] = 0.0
     for k in range(starts):
-        trial[R_X] = x
-        trial[R_Y] = y
-        trial[R_T] = box[0, 2] + (k + 0.5) * span / starts
-        trial[R_LAMBDA] = scan_to_scan_error(field, meta, pts, n, stride, x, y, trial[R_T],
-                                             kernel)
-        trial[R_EVALUATIONS] = 1.0
-        _polish(settings, field, meta, pts, n, box, trial, stride)
+        _settle(settings, field, meta, pts, n, box, x, y, box[0, 2] + (k + 0.5) * span / starts,
+                trial, stride)
         out[R_EVALUATIONS] += trial[R_EVALUATIONS]
         if trial[R_LAMBDA] < out[R_LAMBDA]:
             out[R_X] = trial[R_X]

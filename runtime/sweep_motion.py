@@ -74,9 +74,10 @@ class SweepMotion:
         """``scan`` as seen at the robot's heading at its stamp, given ``motion`` (the robot's,
         its turn ``motion[2]`` read) over the ``interval`` s before it; ``scan`` itself when
         the sweep is 0 or the interval unknown. The returned scan is this object's buffer,
-        valid until the next call. The turn is taken at a steady rate (:meth:`rate`), or, given ``rate_before`` (rad/s, the rate of the interval before),
-        at a rate changing evenly from that one at the sweep's first beam to the one that
-        makes the same turn: a turn that starts or ends is not steady over a sweep."""
+        valid until the next call. The turn is taken at a steady rate (:meth:`rate`), or,
+        given ``rate_before`` (rad/s, the rate of the interval before), at a rate changing
+        evenly from that one at the sweep's first beam to the one that makes the same turn: a
+        turn that starts or ends is not steady over a sweep."""
         rate = self.rate(motion, interval)
         if not self.moving or math.isnan(rate):
             return scan
