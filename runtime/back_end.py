@@ -397,6 +397,7 @@ class BackEnd:
             loops.reanchored += 1
         total_before = g.chi2()
         trial.copy_from(g)
+        trial.rescale(trial.scale_target)  # odometry's scale fitted now, judged with the loop
         n, m = g.n_nodes, g.n_edges
         edge = trial.add_edge(candidate, node, z, self.z_info, LOOP)
         try:  # on trial: judged at its full weight; one Gauss–Newton does not absorb is
@@ -476,6 +477,7 @@ class BackEnd:
         before[:] = g.edge_chi2()
         total_before = float(np.sum(before))
         trial.copy_from(g)
+        trial.rescale(trial.scale_target)
         old = self.strained
         first = trial.add_edge(int(old[0]), int(old[1]), old[2:], self.strained_info, LOOP)
         edge = trial.add_edge(candidate, node, z, self.z_info, LOOP)
@@ -529,6 +531,10 @@ class BackEnd:
         old = self._saved_poses[: g.n_nodes]
         old[:] = g.poses[: g.n_nodes]
         g.poses[:n] = self.trial.poses[:n]
+        if self.trial.scale != g.scale:  # the trial's edges at its scale, later ones brought to it
+            g.z[:m] = self.trial.z[:m]
+            g.rescale(self.trial.scale, first=m)
+            g.scale = self.trial.scale
         for e in range(m, g.n_edges):
             i, j = int(g.ij[e, 0]), int(g.ij[e, 1])
             if i < j and j >= n:

@@ -163,7 +163,8 @@ def smooth_headings(node, rel, is_node, trajectory, odometry, kind, step,
 
 
 def smooth_positions(node, rel, is_node, trajectory, odometry, kind, step,
-                     config: BetweenSmoothing) -> tuple[np.ndarray | None, BetweenNoise | None]:
+                     config: BetweenSmoothing,
+                     scale: float = 1.0) -> tuple[np.ndarray | None, BetweenNoise | None]:
     """Each scan's position in its node's frame (``rel[:, :2]``) with those between nodes
     smoothed with odometry's motion, or None where the run shows it does not pay; and the
     noise estimated.
@@ -172,13 +173,14 @@ def smooth_positions(node, rel, is_node, trajectory, odometry, kind, step,
     ``is_node``: the scan is its node's own; ``trajectory``: its pose in the map; ``odometry``:
     odometry's pose at it (read where ``kind`` is a new or first reading); ``kind``: what its
     odometry reading was (``NO_READING`` ...); ``step``: per node k, the edge that made node
-    k + 1 in k's frame (NaN where none)."""
+    k + 1 in k's frame (NaN where none); ``scale``: odometry's translations times this are the
+    scans' (:mod:`swarmslam.runtime.odometry_scale`)."""
     def disagreement(p, q):
         return (between(trajectory[q], trajectory[p])[:, :2]
-                - between(odometry[q], odometry[p])[:, :2])
+                - scale * between(odometry[q], odometry[p])[:, :2])
 
     # odometry's position in node k's scan's frame (its robot frame there, as node k's is)
-    relative = lambda scans, base: between(odometry[scans], odometry[base])[:, :2]
+    relative = lambda scans, base: scale * between(odometry[scans], odometry[base])[:, :2]
     return _smoothed(disagreement, relative, rel[:, :2], step[:, :2], node, is_node, kind, step,
                      config, angular=False)
 

@@ -413,6 +413,19 @@ class FrontEndConfig(Section):
         "per edge, 0.16 m with the former sigma_translation of 5 cm)", gt=0, le=1)
     curvature_step: tuple[float, float] = _setting(
         (0.05, 0.01), "finite-difference steps (m, rad) of the match's curvature", gt=0)
+    calibrate_odometry_scale: bool = _setting(
+        True, "odometry's translation scale is fitted to the matches that pin the motion (a "
+        "wheel a per cent off), and the node edges that took odometry's distance along a "
+        "degenerate axis are brought to it in the next loop closure's optimisation "
+        "(docs/method.md §6.1, \"Odometry's scale\")")
+    odometry_scale_prior_travel: float = _setting(
+        5.0, "m: a scale of 1 counts as this much travel at the run's mean step in the fit",
+        ge=0)
+    odometry_scale_limits: tuple[float, float] = _setting(
+        (0.8, 1.25), "the least and greatest scale the fit may give", gt=0)
+    odometry_scale_dead_zone: float = _setting(
+        0.005, "the fitted scale is shrunk towards 1 by this much (1 within it): the matches' "
+        "own scale errs by a per-mille or two", ge=0, lt=0.2)
     spread_corrections: bool = _setting(
         True, "a scan between two nodes takes the graph's correction of both, shared by time "
         "(false: its tracking node's alone)")
@@ -440,6 +453,10 @@ class FrontEndConfig(Section):
         if 0.0 < self.recovery_heading_step < MIN_HEADING_STEP:
             raise ConfigError("front_end.recovery_heading_step: must be 0 or >= "
                               f"{MIN_HEADING_STEP}, got {self.recovery_heading_step}")
+        low, high = self.odometry_scale_limits
+        if not low <= 1.0 <= high:
+            raise ConfigError("front_end.odometry_scale_limits: must hold 1 (odometry as it "
+                              f"reads) between them, got {self.odometry_scale_limits}")
 
 
 @dataclass(frozen=True)
@@ -994,6 +1011,8 @@ EXPERT_FIELDS = frozenset({
     "front_end.track_inlier_slope", "front_end.curvature_step", "front_end.window_margin",
     "front_end.stale_turn_window", "front_end.pivot_search_rate", "front_end.stale_motion",
     "front_end.recovery_heading_step", "front_end.recovery_seek_ratio",
+    "front_end.odometry_scale_prior_travel", "front_end.odometry_scale_limits",
+    "front_end.odometry_scale_dead_zone",
     "front_end.periodic_odometry_ratio", "front_end.period_restart_gaps",
     "front_end.degenerate_information",
     "front_end.odometry_gate_share", "front_end.odometry_gate_fit",

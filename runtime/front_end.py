@@ -28,6 +28,7 @@ from swarmslam.runtime.degeneracy import Degeneracy
 from swarmslam.runtime.loop_closure import propagate_covariance
 from swarmslam.runtime.node_scans import NodeScans
 from swarmslam.runtime.odometry_readings import OdometryReadings
+from swarmslam.runtime.odometry_scale import OdometryScale
 from swarmslam.runtime.pose import between, compose, interpolate, wrap_angle
 from swarmslam.runtime.pose_graph import ODOMETRY, PoseGraph, information_from_sigma
 from swarmslam.runtime.scan import PointScan
@@ -143,6 +144,15 @@ class FrontEnd:
         # The pose (in the keyframe's frame) of the scan that brought odometry's last new
         # reading: its motion is predicted from there (docs/method.md §6.1).
         self.odometry_rel = np.zeros(3)
+        # Odometry's scale fitted to the matches that pin the motion; the translation the
+        # keyframe's interval so far took from odometry along a degenerate axis (the next node
+        # edge's odometry part); whether the match at odometry_rel pinned the motion, so that
+        # the motion from it can be observed (docs/method.md §6.1, "Odometry's scale").
+        c = config.front_end
+        self.odometry_scale = OdometryScale(c.odometry_scale_prior_travel,
+                                            c.odometry_scale_limits, c.odometry_scale_dead_zone)
+        self.odometry_part = np.zeros(2)
+        self._pinned_base = False
         self.weak = False  # a match since the last node was replaced by odometry
         self.lost_matches = 0
         self.overruled_odometry = 0  # matches the gate refused that the scans upheld
@@ -182,14 +192,22 @@ class FrontEnd:
         pose = match.pose
         if news:  # (a stale reading predicts no turn to weigh a match against)
             pose = self._nearer_odometry(scan, match, guess, step)
+        pinned = pose is match.pose  # (not held to odometry's heading)
         self.degeneracy = None
         if self.config.front_end.degeneracy_ratio > 0:
             pose = self._constrained(scan, pose, guess)
+            pinned = pinned and not self.degeneracy.degenerate
         # (after the slide along a degenerate axis is dropped: there the box's edge is no sign)
         inside = not self.matcher.at_box_edge(pose, self.config.front_end.window_margin)
         if self._lost(scan, pose, guess, step, odometry is not None, inside):
             pose = self._recover(scan, pose, guess, step, odometry is not None, inside,
                                  stamp - self.last_stamp)
+            pinned = False
+        elif (self.degeneracy is not None and self.degeneracy.degenerate
+              and self._reading != NO_READING):
+            self._note_odometry_part(guess)
+        if news:
+            self._observe_scale(pose, base, step, pinned)
         self.motion = between(pose, self.rel)
         self.rel = pose
         if news:
@@ -219,12 +237,15 @@ class FrontEnd:
         info = self.information()
         if self.degeneracy is not None:  # the edge is the last match: weak where it slid
             info = self.degeneracy.information(info)
-        z = self.rel
+        z = self.rel.copy()  # odometry's part at the scale the graph's edges hold theirs
+        z[:2] += (g.scale - 1.0) * self.odometry_part
         if self.weak:
             info = info / c.weak_information_factor
             self.weak = False
         node = g.add_node(compose(g.poses[previous], z), stamp)
-        g.add_edge(previous, node, z, info, ODOMETRY)
+        g.add_edge(previous, node, z, info, ODOMETRY, self.odometry_part)
+        self.odometry_part[:] = 0.0
+        g.scale_target = self.odometry_scale.scale
         cov = self.nodes.cov
         propagate_covariance(cov[previous], g.poses[previous], z, np.linalg.inv(info),
                              cov[node])
@@ -255,6 +276,8 @@ class FrontEnd:
         self.weak, self.readings.have = False, False
         self.last_stamp, self.last_interval = stamp, math.nan  # (not the saved session's)
         self._prediction(odometry, stamp)  # the new run's odometry starts here
+        self.odometry_part[:] = 0.0
+        self._pinned_base = True  # placed where localization confirmed it
         self.rebuild_reference()
         self._record(stamp)
         self._remember(scan)
@@ -300,7 +323,8 @@ class FrontEnd:
                 poses = self._place(node, rel, stamp, step)
         if c.smooth_between_positions:
             positions, self.position_noise = smooth_positions(node, rel, is_node, poses, odometry,
-                                                              kind, step, smoothing)
+                                                              kind, step, smoothing,
+                                                              self.graph.scale)
             if positions is not None:
                 rel[:, :2] = positions
                 poses = self._place(node, rel, stamp, step)
@@ -349,6 +373,7 @@ class FrontEnd:
             # odometry starts here
             self._note_reading(odometry, *self.readings.read(odometry, stamp))
             self.odometry_rel[:] = 0.0
+            self._pinned_base = True  # the first node's own pose
         self._record(stamp)
         self._remember(scan)
 
@@ -622,6 +647,24 @@ class FrontEnd:
                 best, best_fit, degeneracy = match, fit, self.degeneracy
         return best, degeneracy
 
+    def _note_odometry_part(self, guess) -> None:
+        """The match took odometry's prediction ``guess`` along its degenerate axis: the
+        step from the last scan's pose it gave there is odometry's part of the next node edge
+        (docs/method.md §6.1, "Odometry's scale")."""
+        if not self.config.front_end.calibrate_odometry_scale:
+            return
+        axis = self.degeneracy.axis
+        along = float(axis[0] * (guess[0] - self.rel[0]) + axis[1] * (guess[1] - self.rel[1]))
+        self.odometry_part += along * axis
+
+    def _observe_scale(self, pose, base, step, pinned: bool) -> None:
+        """A new reading's scan: the motion from the scan that brought the last new reading
+        (``base``) to ``pose`` against odometry's ``step`` over it, where both matches pinned
+        the motion."""
+        if pinned and self._pinned_base and self.config.front_end.calibrate_odometry_scale:
+            self.odometry_scale.observe(between(pose, base), step)
+        self._pinned_base = pinned
+
     def _prediction(self, odometry, stamp):
         """Where the scan's predicted pose starts (in the keyframe's frame), the motion added
         to it, and whether odometry brought a new reading: a new reading's motion from the
@@ -674,6 +717,8 @@ class FrontEnd:
                 "submap_nodes": self._submap_nodes[: self._n_submap].copy(),
                 "submap_poses": self._submap_poses[: self._n_submap].copy(),
                 "odometry_rel": self.odometry_rel.copy(), **self.readings.state(),
+                "odometry_scale": self.odometry_scale.sums.copy(),
+                "odometry_part": self.odometry_part.copy(), "pinned_base": self._pinned_base,
                 "last_stamp": self.last_stamp, "last_interval": self.last_interval,
                 "previous_points": self._previous.points.copy()}
 
@@ -711,6 +756,13 @@ class FrontEnd:
         self.keyframe = int(state["keyframe"])
         # a session saved before stale readings were told apart predicts from its last scan
         self.odometry_rel[:] = state.get("odometry_rel", self.rel)
+        # (saved before odometry's scale was fitted: the fit starts afresh)
+        self.odometry_scale.restore(state.get("odometry_scale", np.zeros(3)))
+        part = np.asarray(state.get("odometry_part", np.zeros(2)), np.float64)
+        if part.shape != (2,) or not np.all(np.isfinite(part)):
+            raise ValueError("the keyframe's odometry part is not two finite numbers")
+        self.odometry_part[:] = part
+        self._pinned_base = bool(state.get("pinned_base", False))
         # (saved before the sweep was undistorted: the trajectory's last stamp; no motion's
         # interval, so the next scan's first pass leaves its sweep as it came)
         self.last_stamp = float(state.get("last_stamp", self.scan_stamp[k - 1] if k else math.nan))

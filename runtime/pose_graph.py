@@ -76,6 +76,13 @@ class PoseGraph:
         self.z = np.zeros((max_edges, 3))
         self.info = np.zeros((max_edges, 3, 3))
         self.kind = np.zeros(max_edges, np.int8)
+        # Odometry's scale (docs/method.md §6.1, "Odometry's scale"): per edge, the translation
+        # it took from odometry's prediction along a degenerate axis, as read (in its first
+        # node's frame); the scale its measurement holds that part at; and the scale fitted
+        # now, which the back end's next optimisation brings every edge to (:meth:`rescale`).
+        self.odometry_part = np.zeros((max_edges, 2))
+        self.scale = 1.0
+        self.scale_target = 1.0
         self._e = np.zeros((max_edges, 3))
         self._w = np.zeros(max_edges)
         self.n_nodes = 0
@@ -101,7 +108,10 @@ class PoseGraph:
         self.n_nodes += 1
         return k
 
-    def add_edge(self, i: int, j: int, z, info, kind: int = ODOMETRY) -> int:
+    def add_edge(self, i: int, j: int, z, info, kind: int = ODOMETRY, odometry_part=None) -> int:
+        """Edge ``i`` → ``j`` measuring ``z`` (in ``i``'s frame); ``odometry_part``: the
+        translation of it odometry's prediction gave along a degenerate axis, as read (``z``
+        holds it at :attr:`scale`; none by default)."""
         if self.n_edges >= self.max_edges:
             raise CapacityError(f"edge capacity {self.max_edges} reached")
         if not (0 <= i < self.n_nodes and 0 <= j < self.n_nodes) or i == j:
@@ -111,9 +121,25 @@ class PoseGraph:
         self.z[k] = z
         self.info[k] = info
         self.kind[k] = kind
+        if odometry_part is None:
+            self.odometry_part[k] = 0.0
+        else:
+            self.odometry_part[k] = odometry_part
         self.n_edges += 1
         self.revision += 1
         return k
+
+    def rescale(self, scale: float, first: int = 0) -> None:
+        """Every edge from ``first`` on with its odometry part at ``scale`` instead of
+        :attr:`scale` (which becomes ``scale`` when ``first`` is 0)."""
+        m = self.n_edges
+        change = scale - self.scale
+        if change != 0.0 and m > first:
+            part = self.odometry_part[first:m]
+            self.z[first:m, 0] += change * part[:, 0]
+            self.z[first:m, 1] += change * part[:, 1]
+        if first == 0:
+            self.scale = scale
 
     def remove_last_edge(self) -> None:
         if self.n_edges == 0:
@@ -134,6 +160,7 @@ class PoseGraph:
             if kept != k:
                 self.ij[kept], self.z[kept] = self.ij[k], self.z[k]
                 self.info[kept], self.kind[kept] = self.info[k], self.kind[k]
+                self.odometry_part[kept] = self.odometry_part[k]
             kept += 1
         self.n_edges = kept
         self.revision += 1
@@ -149,6 +176,8 @@ class PoseGraph:
         self.poses[:n], self.stamps[:n] = other.poses[:n], other.stamps[:n]
         self.ij[:m], self.z[:m], self.info[:m] = other.ij[:m], other.z[:m], other.info[:m]
         self.kind[:m] = other.kind[:m]
+        self.odometry_part[:m] = other.odometry_part[:m]
+        self.scale, self.scale_target = other.scale, other.scale_target
         self.n_nodes, self.n_edges = n, m
         self.revision += 1
 
@@ -157,7 +186,9 @@ class PoseGraph:
         n, m = self.n_nodes, self.n_edges
         return {"poses": self.poses[:n].copy(), "stamps": self.stamps[:n].copy(),
                 "ij": self.ij[:m].copy(), "z": self.z[:m].copy(), "info": self.info[:m].copy(),
-                "kind": self.kind[:m].copy(), "revision": self.revision}
+                "kind": self.kind[:m].copy(), "revision": self.revision,
+                "odometry_part": self.odometry_part[:m].copy(),
+                "scale": np.array([self.scale, self.scale_target])}
 
     def restore(self, state: dict) -> None:
         n, m = len(state["poses"]), len(state["ij"])
@@ -169,10 +200,19 @@ class PoseGraph:
             raise ValueError("an edge joins nodes that do not exist")
         if not all(np.all(np.isfinite(state[k])) for k in ("poses", "z", "info")):
             raise ValueError("the graph holds non-finite poses or edge measurements")
+        # (saved before odometry's scale: no edge took a part, and the scale is 1)
+        part = np.asarray(state.get("odometry_part", np.zeros((m, 2))), np.float64)
+        scale = np.asarray(state.get("scale", np.ones(2)), np.float64)
+        if (part.shape != (m, 2) or scale.shape != (2,) or not np.all(np.isfinite(part))
+                or not np.all(np.isfinite(scale)) or not np.all(scale > 0)):
+            raise ValueError("the graph's odometry parts are not two finite numbers per edge, "
+                             "or its scales not two positive ones")
         self.n_nodes, self.n_edges = n, m
         self.poses[:n], self.stamps[:n] = state["poses"], state["stamps"]
         self.ij[:m], self.z[:m], self.info[:m] = ij, state["z"], state["info"]
         self.kind[:m] = state["kind"]
+        self.odometry_part[:m] = part
+        self.scale, self.scale_target = float(scale[0]), float(scale[1])
         self.revision = int(state["revision"])
 
     def errors(self) -> np.ndarray:

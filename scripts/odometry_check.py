@@ -1,16 +1,18 @@
 """What a run shows of its robot's odometry (``odometry_seen`` in a replay's ``metrics.json``;
 docs/formats.md, "metrics.json").
 
-A robot's odometry is set up by hand: a wheel radius, a wheel base. The SLAM does not learn
-them (a scale learnt on line makes a corridor's passes disagree, and re-scaling the graph's
-edges as it changes once cost a map: docs/experiments/2026-11-29-odometry-scale-again.md), but
-a run can tell the user how far off they are, from the trajectory's motion between scans with
-consecutive new readings against odometry's over the same readings:
+A robot's odometry is set up by hand: a wheel radius, a wheel base. The SLAM fits the
+distance scale where it must (:mod:`swarmslam.runtime.odometry_scale`), and a run tells the
+user how far off both are, from the trajectory's motion between scans with consecutive new
+readings against odometry's over the same readings:
 
 - ``translation_scale``: the least-squares fit of the trajectory's translations to odometry's,
   ``Σ m·o / Σ o·o`` in each pair's first frame; 1.03 means the robot went 3% farther than its
   odometry said (a wheel radius 3% too small). Along a plain corridor the trajectory takes
   odometry's distance (the scans do not pin it), which pulls the figure towards 1.
+- ``fitted_scale``: the SLAM's own fit at the end (docs/method.md §6.1, "Odometry's scale"),
+  and ``edges_scale`` the scale the pose graph's edges hold odometry's part at (the fit's
+  value at the last loop closure).
 - ``heading_sigma_deg``, ``position_sigma_m``: the noise of odometry's motion over one
   reading, and ``match_heading_sigma_deg``, ``match_position_sigma_m`` a between-scan
   match's, as the trajectory's smoothing estimated them (docs/method.md §6.2, "Between-scan
@@ -60,7 +62,8 @@ def odometry_seen(front_end, trajectory) -> dict:
                                      front_end.scan_reading[:n])
     if scale is None:
         return {}
-    out = {"translation_scale": scale, "pairs": pairs}
+    out = {"translation_scale": scale, "pairs": pairs,
+           "edges_scale": front_end.graph.scale, "fitted_scale": front_end.odometry_scale.scale}
     for noise, key, unit in ((front_end.heading_noise, "heading_sigma_deg", math.degrees),
                              (front_end.position_noise, "position_sigma_m", float)):
         if noise is None:

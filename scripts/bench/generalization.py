@@ -164,7 +164,7 @@ class TruthOracle:
     matching"): it replaces the guess the front end and the loop search pass to their
     matchers, and the prediction the front end keeps along a direction its scan does not pin
     (a corridor's axis). The floor's run trusts every match (no odometry gate, no inlier
-    test). Passed as ``replay_run``'s ``before_scan``: it takes hold of the run's SLAM at the
+    test) and fits no odometry scale (its prediction along the axis is the truth). Passed as ``replay_run``'s ``before_scan``: it takes hold of the run's SLAM at the
     first scan and then follows which scan is being tracked."""
 
     def __init__(self, stamps, truth):
@@ -228,9 +228,11 @@ def run_case(case: Case, work: Path, config: SlamConfig | None = None, floor: bo
         sweep = made["sweep_seconds"] if rotates(SCANNERS[case.scanner]) else 0.0
         run_config = override(config or SlamConfig(), {"sensor.sweep_seconds": sweep})
         hook = None
-        if oracle:  # a perfect match is never lost: nothing for the gate or the inlier test
+        if oracle:  # a perfect match is never lost: nothing for the gate or the inlier test,
+            # and nothing to fit odometry's scale for: along a corridor's axis it holds the truth
             run_config = override(run_config, {"front_end.odometry_gate": None,
-                                               "front_end.min_track_inliers": 0.0})
+                                               "front_end.min_track_inliers": 0.0,
+                                               "front_end.calibrate_odometry_scale": False})
             hook = TruthOracle(stamps, truth)
         m, runtime = replay_run(log, made["relations"], None, case.use_odometry, None, None,
                                 case.seed, run_config,
