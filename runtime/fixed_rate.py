@@ -41,6 +41,7 @@ from swarmslam.runtime.config import SensorConfig, SlamConfig, from_dict, overri
 from swarmslam.runtime.inbox import ScanInbox, real_array
 from swarmslam.runtime.localization import Localizer
 from swarmslam.runtime.map_tracking import SavedMap
+from swarmslam.runtime.pose_graph import add_scaled
 from swarmslam.runtime.scan import PointScan, usable_beams, usable_points
 from swarmslam.runtime.slam import GraphSlam
 from swarmslam.runtime.step_result import StepResult
@@ -227,6 +228,9 @@ class SlamRuntime:
         usable_beams(ranges, drive.angles, 0.05, drive.max_range)
         usable_points(scan.buffer, scan.count, scan.sweep)
         usable_points(scan.buffer, scan.count, None)
+        # odometry's scale brought into a trial, which a drive too short to fit one may not do
+        graph = scratch.slam.graph
+        add_scaled(graph.z, graph.odometry_part, 0.0, 0, 0)
         if scratch.slam.loops_closed == 0:
             raise RuntimeError("warm-up closed no loop: the loop-closure kernels stay cold")
         if scratch.slam.back_end.wide.searches == 0:

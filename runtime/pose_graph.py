@@ -59,6 +59,15 @@ def weighted_errors(e, info, out):
         out[k] = acc
 
 
+@njit(cache=True)
+def add_scaled(z, part, change, first, last):
+    """``z[k, :2] += change · part[k]`` for edges ``first`` to ``last`` (in place: a trial
+    re-scales every edge of a large graph, and an array per call would grow the heap)."""
+    for k in range(first, last):
+        z[k, 0] += change * part[k, 0]
+        z[k, 1] += change * part[k, 1]
+
+
 def information_from_sigma(sigma_lambda: float) -> np.ndarray:
     """Eq. 20: ``Ω = I / σλ²``."""
     if not sigma_lambda > 0:
@@ -132,12 +141,9 @@ class PoseGraph:
     def rescale(self, scale: float, first: int = 0) -> None:
         """Every edge from ``first`` on with its odometry part at ``scale`` instead of
         :attr:`scale` (which becomes ``scale`` when ``first`` is 0)."""
-        m = self.n_edges
         change = scale - self.scale
-        if change != 0.0 and m > first:
-            part = self.odometry_part[first:m]
-            self.z[first:m, 0] += change * part[:, 0]
-            self.z[first:m, 1] += change * part[:, 1]
+        if change != 0.0:
+            add_scaled(self.z, self.odometry_part, change, first, self.n_edges)
         if first == 0:
             self.scale = scale
 
