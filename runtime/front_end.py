@@ -203,8 +203,7 @@ class FrontEnd:
             pose = self._recover(scan, pose, guess, step, odometry is not None, inside,
                                  stamp - self.last_stamp)
             pinned = False
-        elif (self.degeneracy is not None and self.degeneracy.degenerate
-              and self._reading != NO_READING):
+        elif self.degeneracy is not None:
             self._note_odometry_part(guess)
         if news:
             self._observe_scale(pose, base, step, pinned)
@@ -648,10 +647,17 @@ class FrontEnd:
         return best, degeneracy
 
     def _note_odometry_part(self, guess) -> None:
-        """The match took odometry's prediction ``guess`` along its degenerate axis: the
-        step from the last scan's pose it gave there is odometry's part of the next node edge
-        (docs/method.md §6.1, "Odometry's scale")."""
+        """The next node edge's odometry part (docs/method.md §6.1, "Odometry's scale"): a
+        match that took odometry's prediction ``guess`` along its degenerate axis adds the
+        step from the last scan's pose the prediction gave there; a match that pins every
+        direction starts it afresh, for the keyframe's frame holds it where the scans put it
+        (counting the steps before it would scale a distance the match already measured)."""
         if not self.config.front_end.calibrate_odometry_scale:
+            return
+        if not self.degeneracy.degenerate:
+            self.odometry_part[:] = 0.0
+            return
+        if self._reading == NO_READING:  # (on scans alone the prediction is the scans' own)
             return
         axis = self.degeneracy.axis
         along = float(axis[0] * (guess[0] - self.rel[0]) + axis[1] * (guess[1] - self.rel[1]))
