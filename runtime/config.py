@@ -419,10 +419,12 @@ class FrontEndConfig(Section):
         "degenerate axis are brought to it in the next loop closure's optimisation "
         "(docs/method.md §6.1, \"Odometry's scale\")")
     odometry_scale_prior_travel: float = _setting(
-        5.0, "m: a scale of 1 counts as this much travel at the run's mean step in the fit",
-        ge=0)
+        5.0, "m: the fit is blended with a scale of 1 worth this much travel (a short run "
+        "keeps odometry as it reads)", ge=0)
     odometry_scale_limits: tuple[float, float] = _setting(
-        (0.8, 1.25), "the least and greatest scale the fit may give", gt=0)
+        (0.8, 1.25), "the least and greatest ratio of a step's scanned to read translation "
+        "the fit tells apart (one beyond counts at the limit), and so the least and greatest "
+        "scale it gives", gt=0)
     odometry_scale_dead_zone: float = _setting(
         0.005, "the fitted scale is shrunk towards 1 by this much (1 within it): the matches' "
         "own scale errs by a per-mille or two", ge=0, lt=0.2)

