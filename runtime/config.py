@@ -456,9 +456,9 @@ class FrontEndConfig(Section):
             raise ConfigError("front_end.recovery_heading_step: must be 0 or >= "
                               f"{MIN_HEADING_STEP}, got {self.recovery_heading_step}")
         low, high = self.odometry_scale_limits
-        if not low <= 1.0 <= high:
+        if not low < 1.0 < high:
             raise ConfigError("front_end.odometry_scale_limits: must hold 1 (odometry as it "
-                              f"reads) between them, got {self.odometry_scale_limits}")
+                              f"reads) strictly between them, got {self.odometry_scale_limits}")
 
 
 @dataclass(frozen=True)

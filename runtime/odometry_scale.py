@@ -92,6 +92,8 @@ class OdometryScale:
             return
         low, high = self.limits
         ratio = (mx * ox + my * oy) / squared
+        if not math.isfinite(ratio):
+            return
         k = min(max(int((ratio - low) / (high - low) * BINS), 0), BINS - 1)
         self.travel[k] += math.sqrt(squared)
 

@@ -53,8 +53,8 @@ def test_the_prior_holds_a_short_run_near_odometry_and_gives_way_with_travel():
 
 
 def test_turns_in_place_and_unusable_matches_say_nothing_and_the_fit_is_clipped():
-    fit = _fit([[0.0, 0.0], [0.05, 0.0], [0.05, np.inf]],
-               [[0.03, 0.01], [np.nan, 0.0], [0.05, 0.0]], limits=(0.9, 1.1))
+    fit = _fit([[0.0, 0.0], [0.05, 0.0], [0.05, np.inf], [1e-150, 0.0]],
+               [[0.03, 0.01], [np.nan, 0.0], [0.05, 0.0], [1e200, 0.0]], limits=(0.9, 1.1))
     assert not fit.travel.any() and fit.scale == 1.0
     fit.observe([0.1, 0.0], [0.05, 0.0])  # twice as far: counted at the limit
     assert fit.scale == pytest.approx(1.1, abs=2e-4)
@@ -78,8 +78,9 @@ def test_a_saved_fit_restores_and_a_foreign_one_is_refused():
 
 
 def test_the_limits_must_hold_odometry_as_it_reads():
-    with pytest.raises(ConfigError, match="odometry_scale_limits"):
-        override(SlamConfig(), {"front_end.odometry_scale_limits": [1.05, 1.2]})
+    for limits in ([1.05, 1.2], [1.0, 1.0]):
+        with pytest.raises(ConfigError, match="odometry_scale_limits"):
+            override(SlamConfig(), {"front_end.odometry_scale_limits": limits})
 
 
 def test_the_graph_brings_each_edges_odometry_part_to_a_scale_and_keeps_it_through_copies():
