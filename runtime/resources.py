@@ -30,7 +30,8 @@ def estimated_bytes(config: SlamConfig) -> dict[str, int]:
     return {
         "capacity.max_nodes × sensor.max_points (node scans)": nodes * (points * 2 * FLOAT
                                                                         + 9 * FLOAT + 4 * FLOAT),
-        "capacity.max_edges (pose graph)": c.capacity.max_edges * (3 + 9 + 3) * FLOAT,
+        # per edge: its measurement, information, error and odometry's part
+        "capacity.max_edges (pose graph)": c.capacity.max_edges * (3 + 9 + 3 + 2) * FLOAT,
         "capacity.max_scans (trajectory)": c.capacity.max_scans * 5 * FLOAT,
         "matcher.grid_cells (reference grids, three matchers)": 3 * reference,
         "sensor.max_points × submaps": points * 2 * FLOAT * (
