@@ -175,8 +175,9 @@ def _corridor(config, scans=300, wheel=0.95):
 
 def test_the_front_end_fits_the_scale_where_the_scans_pin_it_and_notes_odometrys_part_elsewhere():
     """The plain part's node edges hold odometry's distance, noted as their odometry part;
-    the ribbed part's edges hold far less; its matches show odometry 5% short (the fit: 1/0.95 shrunk by the prior's
-    5 m and the dead zone). A saved session carries both; off, nothing is fitted or noted."""
+    the ribbed part's edges hold far less; its matches show odometry 5% short (the fit:
+    1/0.95 shrunk by the prior's 5 m and the dead zone). A saved session carries both; off,
+    nothing is fitted or noted."""
     slam = _corridor(SlamConfig())
     g, front = slam.graph, slam.front_end
     node_x = g.poses[: g.n_nodes, 0]

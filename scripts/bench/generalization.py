@@ -164,8 +164,9 @@ class TruthOracle:
     matching"): it replaces the guess the front end and the loop search pass to their
     matchers, and the prediction the front end keeps along a direction its scan does not pin
     (a corridor's axis). The floor's run trusts every match (no odometry gate, no inlier
-    test) and fits no odometry scale (its prediction along the axis is the truth). Passed as ``replay_run``'s ``before_scan``: it takes hold of the run's SLAM at the
-    first scan and then follows which scan is being tracked."""
+    test) and fits no odometry scale (its prediction along the axis is the truth). Passed as
+    ``replay_run``'s ``before_scan``: it takes hold of the run's SLAM at the first scan and
+    then follows which scan is being tracked."""
 
     def __init__(self, stamps, truth):
         self.stamps, self.truth = np.asarray(stamps), np.asarray(truth)
