@@ -704,7 +704,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "for the scans to contradict it")
     au.add_argument("--plots", metavar="DIR", help="write the audit's figures (PNG) here: "
                     "fit over time and, with --trajectory, its gross short failures placed "
-                    "both ways (extra 'plots')")
+                    "by the relation, the trajectory and odometry (extra 'plots')")
     au.set_defaults(func=_relations_audit)
 
     sw = sub.add_parser("sweep", help="replays over logs × optimizers × seeds × configuration "

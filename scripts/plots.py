@@ -99,26 +99,32 @@ def relations_audit_figure(out_dir, label: str, t, fit, fit_aligned, contradicte
 GROSS_SHOWN = 6  # gross failures drawn at most, the first listed
 
 
+PLACED_BY = {"relation": "the relation", "trajectory": "the trajectory", "odometry": "odometry"}
+
+
 def gross_failures_figure(out_dir, label: str, gross: list[dict]) -> Path:
     """A trajectory's gross short failures the audit could not call contradicted
     (swarmslam.relations_audit.fits_of_gross_failures): per relation, its second scan (red) on
-    its first (blue) placed by the relation (left) and by the trajectory (right), each titled
-    with the share of points that fits — which of the two the surfaces the scans share side
-    with."""
+    its first (blue) placed by the relation (left), by the trajectory and, where the audit had
+    odometry, by odometry (right), each titled with the share of points that fits — which
+    placement the surfaces the scans share side with."""
     plt = _pyplot()
     shown = gross[:GROSS_SHOWN]
-    fig, axes = plt.subplots(len(shown), 2, figsize=(10, 4.6 * len(shown)), squeeze=False)
+    names = [n for n in ("relation", "trajectory", "odometry")
+             if all(f"by_{n}" in g for g in shown)]
+    fig, axes = plt.subplots(len(shown), len(names), figsize=(5 * len(names), 4.6 * len(shown)),
+                             squeeze=False)
     for row, g in zip(axes, shown):
         first = np.asarray(g["first"])
         # framed, square, on where most returns lie: a few far ones would shrink the surfaces
         # to dots
-        placed = [transform_points(np.asarray(g[k]), np.asarray(g["second"]))
-                  for k in ("by_relation", "by_trajectory")]
+        placed = [transform_points(np.asarray(g[f"by_{n}"]), np.asarray(g["second"]))
+                  for n in names]
         lo, hi = np.percentile(np.vstack([first, *placed]), [3, 97], axis=0)
         centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo).max() + 2.0
         lo, hi = centre - half, centre + half
-        for ax, name, second, fit in zip(row, ("relation", "trajectory"), placed,
-                                         (g["fit_relation"], g["fit_trajectory"])):
+        for ax, name, second in zip(row, names, placed):
+            fit = g[f"fit_{name}"]
             ax.plot(first[:, 0], first[:, 1], ".", ms=2.5, color="tab:blue", label="first scan")
             ax.plot(second[:, 0], second[:, 1], ".", ms=2.5, color="tab:red",
                     label="second scan")
@@ -127,7 +133,7 @@ def gross_failures_figure(out_dir, label: str, gross: list[dict]) -> Path:
             ax.set_aspect("equal")
             ax.grid(True, alpha=0.3)
             ax.set_title(f"t1 {g['t1']:.2f}, {g['t2'] - g['t1']:.1f} s, eR {g['eR_deg']:.1f}°:\n"
-                         f"placed by the {name}, {fit:.0%} of its points fit", fontsize=9)
+                         f"placed by {PLACED_BY[name]}, {fit:.0%} of its points fit", fontsize=9)
         row[0].legend(loc="upper left", fontsize=7)
     fig.suptitle(f"{label}: gross short failures the scans do not contradict by ICP's gain")
     return save(fig, Path(out_dir) / f"audit-{_slug(label)}-gross.png")

@@ -229,7 +229,7 @@ def short_tail_apart(stamps, poses, relations: Relations, audit: Audit,
     return out
 
 
-def fits_of_gross_failures(short: dict, scans, scan_stamps, stamps, poses,
+def fits_of_gross_failures(short: dict, scans, scan_stamps, stamps, poses, odometry=None,
                            inlier_distance: float = INLIER_DISTANCE) -> list[dict]:
     """The gross short failures the scans do not contradict, as :func:`short_tail_apart` lists
     them in ``short`` (each with its relation's pose ``delta``), their two scans placed on each
@@ -239,7 +239,13 @@ def fits_of_gross_failures(short: dict, scans, scan_stamps, stamps, poses,
     the scans and both placements (``first``, ``second``, ``by_relation``, ``by_trajectory``).
     A gross failure the scans do not contradict by ICP's gain may still fit them better placed
     by the trajectory: two scans that share little (a fast turn, a hall of clutter) leave ICP
-    short of the gain, and this shows which of the two the surfaces they share side with."""
+    short of the gain, and this shows which of the two the surfaces they share side with.
+
+    With ``odometry`` (the pose odometry gave with each scan, (n, 3)), a third witness that is
+    neither the reference nor the trajectory: odometry's own motion between the two scans
+    places the second a third time (``fit_odometry``, ``by_odometry``), and its heading's
+    difference from the relation's and from the trajectory's is given (``odometry_eR_deg``,
+    ``odometry_vs_trajectory_deg``)."""
     listed = short.get(f"short_over_{GROSS_DEG:g}deg_confirmed", [])
     if not listed:
         return []
@@ -258,9 +264,20 @@ def fits_of_gross_failures(short: dict, scans, scan_stamps, stamps, poses,
         by_relation = ends.delta[k]
         r.update(fit_relation=scan_fit(tree, second, by_relation, inlier_distance),
                  fit_trajectory=scan_fit(tree, second, by_trajectory, inlier_distance))
-        out.append({**r, "first": first, "second": second, "by_relation": by_relation,
-                    "by_trajectory": by_trajectory})
+        placements = {"by_relation": by_relation, "by_trajectory": by_trajectory}
+        if odometry is not None:
+            by_odometry = between(odometry[j[k]], odometry[i[k]])
+            r.update(fit_odometry=scan_fit(tree, second, by_odometry, inlier_distance),
+                     odometry_eR_deg=heading_apart(by_odometry, by_relation),
+                     odometry_vs_trajectory_deg=heading_apart(by_odometry, by_trajectory))
+            placements["by_odometry"] = by_odometry
+        out.append({**r, "first": first, "second": second, **placements})
     return out
+
+
+def heading_apart(a, b) -> float:
+    """The heading between two relative poses (°, in [0, 180])."""
+    return float(np.degrees(abs(between(np.asarray(a), np.asarray(b))[2])))
 
 
 WORST_SHOWN = 10  # the worst relations printed (the JSON keeps WORST_KEPT)
@@ -326,7 +343,7 @@ def audit_command(log_path, relations_path, trajectory_path=None, json_path=None
     if "correction_m_median" in result:
         print(f"  the scans move a contradicted relation by {result['correction_m_median']:.3f} m"
               f" / {result['correction_deg_median']:.2f}° (median)")
-    gross = []  # the trajectory's gross short failures, placed both ways
+    gross = []  # the trajectory's gross short failures, placed by the relation, it and odometry
     if trajectory_path:
         result["trajectory"] = str(trajectory_path)
         result["scores"] = scored_apart(stamps, poses, relations, audit)
@@ -345,11 +362,14 @@ def audit_command(log_path, relations_path, trajectory_path=None, json_path=None
                   f"{short['relations_short_confirmed']} the scans do not contradict; "
                   f"{short[f'eR_short_{key}']} above {GROSS_DEG:g}°, "
                   f"{short[f'eR_short_{key}_confirmed']} of them not contradicted")
-        gross = fits_of_gross_failures(short, scans, scan_stamps, stamps, poses)
+        gross = fits_of_gross_failures(short, scans, scan_stamps, stamps, poses, odometry)
         for g in gross:
             print(f"    {g['t1']:.3f} ({g['t2'] - g['t1']:.2f} s, eR {g['eR_deg']:.2f}°): the "
                   f"second scan fits {g['fit_relation']:.0%} of its points on the first placed "
-                  f"by the relation, {g['fit_trajectory']:.0%} placed by the trajectory")
+                  f"by the relation, {g['fit_trajectory']:.0%} placed by the trajectory, "
+                  f"{g['fit_odometry']:.0%} by odometry (whose heading is "
+                  f"{g['odometry_eR_deg']:.2f}° off the relation's and "
+                  f"{g['odometry_vs_trajectory_deg']:.2f}° off the trajectory's)")
     if trajectory_path:
         result["worst"] = worst_relations(stamps, poses, relations, scan_stamps, odometry, audit)
         print(f"  the {WORST_SHOWN} worst relations of the trajectory (heading):")

@@ -198,20 +198,36 @@ def test_short_gross_failures_are_told_from_relations_the_scans_contradict(tmp_p
 
     # Each gross failure listed with its scans placed both ways: here the relation is the
     # truth and the trajectory slipped, so the scans fit the relation's placement ...
-    placed = relations_audit.fits_of_gross_failures(tail, scans, scan_stamps, stamps, trajectory)
+    # (odometry, the truth in this log, is the third witness and sides with the relation)
+    placed = relations_audit.fits_of_gross_failures(tail, scans, scan_stamps, stamps, trajectory,
+                                                    odometry)
     assert len(placed) == touches.sum()
+    slip = np.degrees(0.3)
     for r in tail["short_over_10deg_confirmed"]:
         assert r["fit_relation"] > 0.8 and r["fit_trajectory"] < r["fit_relation"] - 0.3
+        assert r["fit_odometry"] == pytest.approx(r["fit_relation"], abs=0.02)
+        assert r["odometry_eR_deg"] < 0.01
+        assert r["odometry_vs_trajectory_deg"] == pytest.approx(slip, abs=0.01)
     # ... and the other way round when the trajectory is the truth and the relation slipped
     swapped = {"short_over_10deg_confirmed": [
         {**r, "delta": list(compose(np.asarray(r["delta"]), np.array([0.0, 0.0, 0.3])))}
         for r in tail["short_over_10deg_confirmed"]]}
-    relations_audit.fits_of_gross_failures(swapped, scans, scan_stamps, stamps, poses)
+    relations_audit.fits_of_gross_failures(swapped, scans, scan_stamps, stamps, poses, odometry)
     for r in swapped["short_over_10deg_confirmed"]:
         assert r["fit_trajectory"] > 0.8 and r["fit_relation"] < r["fit_trajectory"] - 0.3
+        assert r["fit_odometry"] == pytest.approx(r["fit_trajectory"], abs=0.02)
+        assert r["odometry_eR_deg"] == pytest.approx(slip, abs=0.01)
+        assert r["odometry_vs_trajectory_deg"] < 0.01
     figure = gross_failures_figure(tmp_path / "plots", "room", placed)
     assert figure.name == "audit-room-gross.png"
     assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # without odometry: two placements, no odometry fields
+    alone = relations_audit.fits_of_gross_failures(
+        {"short_over_10deg_confirmed": [{k: r[k] for k in ("t1", "t2", "eR_deg", "delta")}
+                                        for r in swapped["short_over_10deg_confirmed"]]},
+        scans, scan_stamps, stamps, poses)
+    assert alone and all("by_odometry" not in g and "fit_odometry" not in g for g in alone)
+    assert gross_failures_figure(tmp_path / "two", "room", alone).exists()
 
     # relations 10 s apart or more are not short: nothing to report
     later = Relations(stamps[i], stamps[j] + relations_audit.SHORT_GAP, delta)

@@ -68,7 +68,8 @@ def bench_slam(data_dir: Path, optimizers=("abc", "pso", "fa"), logs=tuple(LOGS)
         log_path = require(Path(data_dir) / "radish" / log)
         rel_path = require(Path(data_dir) / "radish" / rel)
         relations = read_relations(rel_path)
-        audit, scans, scan_stamps, _ = audit_log(log_path, relations, label=f"audit {name}")
+        audit, scans, scan_stamps, odometry_at_scans = audit_log(log_path, relations,
+                                                                 label=f"audit {name}")
         results["audits"][name] = audit.summary(relations)
         rows = []
         for optimizer in optimizers:
@@ -81,7 +82,8 @@ def bench_slam(data_dir: Path, optimizers=("abc", "pso", "fa"), logs=tuple(LOGS)
                                             limit, seed, label=label, config=config)
                     if plots:
                         plot_run(plots, label, runtime, relations)
-                    m.update(audited_tail(runtime, relations, audit, scans, scan_stamps))
+                    m.update(audited_tail(runtime, relations, audit, scans, scan_stamps,
+                                          odometry_at_scans))
                     m.update(dataset=name, seed=seed)
                     results["runs"].append(m)
                     runs.append(m)
@@ -97,17 +99,18 @@ def bench_slam(data_dir: Path, optimizers=("abc", "pso", "fa"), logs=tuple(LOGS)
     return results
 
 
-def audited_tail(runtime, relations, audit, scans, scan_stamps) -> dict:
+def audited_tail(runtime, relations, audit, scans, scan_stamps, odometry=None) -> dict:
     """The run's short relations scored apart over those the scans do not contradict
     (swarmslam.relations_audit.short_tail_apart), each gross failure listed with the fit of
-    its scans placed by the relation and by the run (``fits_of_gross_failures``); empty when
-    no relation lies within the run (a ``--limit`` run)."""
+    its scans placed by the relation, by the run and by ``odometry`` (the pose it gave with
+    each scan; ``fits_of_gross_failures``); empty when no relation lies within the run (a
+    ``--limit`` run)."""
     stamps, poses = runtime.trajectory()
     try:
         short = short_tail_apart(stamps, poses, relations, audit)
     except ValueError:  # no relation has both ends in the trajectory
         return {}
-    fits_of_gross_failures(short, scans, scan_stamps, stamps, poses)
+    fits_of_gross_failures(short, scans, scan_stamps, stamps, poses, odometry)
     return short
 
 
