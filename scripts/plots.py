@@ -99,6 +99,7 @@ def relations_audit_figure(out_dir, label: str, t, fit, fit_aligned, contradicte
 GROSS_SHOWN = 6  # gross failures drawn at most, the first listed
 
 
+# what placed the second scan, as a figure's title names it
 PLACED_BY = {"relation": "the relation", "trajectory": "the trajectory", "odometry": "odometry"}
 
 

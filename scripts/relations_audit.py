@@ -343,7 +343,7 @@ def audit_command(log_path, relations_path, trajectory_path=None, json_path=None
     if "correction_m_median" in result:
         print(f"  the scans move a contradicted relation by {result['correction_m_median']:.3f} m"
               f" / {result['correction_deg_median']:.2f}° (median)")
-    gross = []  # the trajectory's gross short failures, placed by the relation, it and odometry
+    gross = []  # gross short failures, placed by the relation, the trajectory and odometry
     if trajectory_path:
         result["trajectory"] = str(trajectory_path)
         result["scores"] = scored_apart(stamps, poses, relations, audit)
