@@ -51,3 +51,25 @@ class Degeneracy:
         a[:2] = self.axis
         scale = np.eye(3) - (1.0 - math.sqrt(share)) * np.outer(a, a)
         return scale @ base @ scale
+
+
+class DegeneracyCheck:
+    """The match where the scan pins it, the prediction where it does not (the front end's
+    ``reference``); :attr:`last` is the last match's :class:`Degeneracy`, for the next node's
+    edge, which is weak along its axis."""
+
+    def __init__(self, config, matcher, reference, counts):
+        """``config``: the front end's section (``degeneracy_ratio``, ``curvature_step``,
+        ``degenerate_information``); ``counts``: tallies ``degenerate_matches``."""
+        self.config, self.matcher, self.reference, self.counts = config, matcher, reference, counts
+        self.last: Degeneracy | None = None
+
+    def constrain(self, scan, pose, guess) -> np.ndarray:
+        """``pose`` (a match of ``scan``), but at the prediction ``guess``'s position along the
+        axis the scan does not pin."""
+        c = self.config
+        h = self.matcher.curvature(scan, self.reference, pose, c.curvature_step)
+        self.last = Degeneracy(h, c.degeneracy_ratio, c.degenerate_information)
+        if self.last.degenerate:
+            self.counts.degenerate_matches += 1
+        return self.last.remap(pose, guess)

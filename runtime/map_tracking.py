@@ -27,9 +27,10 @@ from numba import njit
 
 from swarmslam.runtime.config import SlamConfig
 from swarmslam.runtime.degeneracy import Degeneracy
-from swarmslam.runtime.front_end import contradicts_odometry, stale_turn_box
 from swarmslam.runtime.node_scans import NodeScans
+from swarmslam.runtime.odometry_gate import contradicts_odometry
 from swarmslam.runtime.pose import between, compose
+from swarmslam.runtime.recovery import stale_turn_box
 from swarmslam.runtime.scan import PointScan
 from swarmslam.runtime.scan_matcher import ScanMatcher
 from swarmslam.runtime.sweep_motion import SweepMotion

@@ -38,6 +38,8 @@ import math
 import numpy as np
 from numba import njit
 
+from swarmslam.runtime.pose import between
+
 BINS = 1000  # bins of the steps' ratios across the limits (0.00045 wide for 0.8–1.25)
 
 
@@ -104,3 +106,50 @@ class OdometryScale:
         if travel.shape != (BINS,) or not np.all(np.isfinite(travel)) or np.any(travel < 0):
             raise ValueError(f"odometry's scale is not {BINS} finite, non-negative travels")
         self.travel[:] = travel
+
+
+class OdometryCalibration:
+    """Odometry's scale as the front end observes it: the fit, the translation the keyframe's
+    interval so far took from odometry along a degenerate axis (the next node edge's odometry
+    part), and whether the match that brought odometry's last new reading pinned the motion,
+    so that the motion from it can be observed."""
+
+    def __init__(self, config):
+        """``config``: the front end's section (``calibrate_odometry_scale`` and the
+        ``odometry_scale_*`` fields)."""
+        self.enabled = config.calibrate_odometry_scale
+        self.fit = OdometryScale(config.odometry_scale_prior_travel,
+                                 config.odometry_scale_limits, config.odometry_scale_dead_zone)
+        self.part = np.zeros(2)
+        self.pinned_base = False
+
+    def note_part(self, axis, guess, last) -> None:
+        """A match that took odometry's prediction ``guess`` along its degenerate ``axis``: the
+        step from the last scan's pose ``last`` that the prediction gave there adds to the
+        next node edge's odometry part."""
+        if not self.enabled:
+            return
+        along = float(axis[0] * (guess[0] - last[0]) + axis[1] * (guess[1] - last[1]))
+        self.part += along * axis
+
+    def observe(self, pose, base, step, pinned: bool) -> None:
+        """A new reading's scan: the motion from the scan that brought the last new reading
+        (``base``) to ``pose`` against odometry's ``step`` over it, where both matches pinned
+        the motion."""
+        if pinned and self.pinned_base and self.enabled:
+            self.fit.observe(between(pose, base), step)
+        self.pinned_base = pinned
+
+    def state(self) -> dict:
+        return {"odometry_scale": self.fit.travel.copy(), "odometry_part": self.part.copy(),
+                "pinned_base": self.pinned_base}
+
+    def restore(self, state: dict) -> None:
+        # (saved before odometry's scale was fitted: the fit starts afresh)
+        if "odometry_scale" in state:
+            self.fit.restore(state["odometry_scale"])
+        part = np.asarray(state.get("odometry_part", np.zeros(2)), np.float64)
+        if part.shape != (2,) or not np.all(np.isfinite(part)):
+            raise ValueError("the keyframe's odometry part is not two finite numbers")
+        self.part[:] = part
+        self.pinned_base = bool(state.get("pinned_base", False))

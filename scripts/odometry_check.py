@@ -57,15 +57,15 @@ def odometry_seen(front_end, trajectory) -> dict:
     """The run's figures (see the module's docstring) from ``front_end``'s record and its
     ``trajectory`` (one pose per scan, as ``FrontEnd.trajectory`` gave it, which also leaves
     the smoothing's noise estimates on the front end); empty without odometry."""
-    n = front_end.n_scans
-    scale, pairs = translation_scale(trajectory[:n], front_end.scan_odometry[:n],
-                                     front_end.scan_reading[:n])
+    n = front_end.scans.n
+    scale, pairs = translation_scale(trajectory[:n], front_end.scans.odometry[:n],
+                                     front_end.scans.reading[:n])
     if scale is None:
         return {}
     out = {"translation_scale": scale, "pairs": pairs,
-           "edges_scale": front_end.graph.scale, "fitted_scale": front_end.odometry_scale.scale}
-    for noise, key, unit in ((front_end.heading_noise, "heading_sigma_deg", math.degrees),
-                             (front_end.position_noise, "position_sigma_m", float)):
+           "edges_scale": front_end.graph.scale, "fitted_scale": front_end.calibration.fit.scale}
+    for noise, key, unit in ((front_end.scans.heading_noise, "heading_sigma_deg", math.degrees),
+                             (front_end.scans.position_noise, "position_sigma_m", float)):
         if noise is None:
             continue
         if noise.odometry > 0:

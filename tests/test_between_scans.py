@@ -130,30 +130,30 @@ def test_the_front_end_records_what_odometry_read_at_each_scan():
         scan.set_ranges(scan_at(world, path[k], ANGLES, 12.0, 0.01), ANGLES, 0.05, 12.0)
         slam.step(scan, reading, float(k))
     fe = slam.front_end
-    assert fe.scan_reading[: fe.n_scans].tolist() == [
+    assert fe.scans.reading[: fe.scans.n].tolist() == [
         FIRST_READING, NEW_READING, STALE_READING, NO_READING, FIRST_READING, NEW_READING]
-    assert np.allclose(fe.scan_odometry[[0, 1, 4, 5]], path[[0, 1, 4, 5]])
+    assert np.allclose(fe.scans.odometry[[0, 1, 4, 5]], path[[0, 1, 4, 5]])
     # a session keeps them; one saved before odometry's pose was kept (its heading alone, or
     # nothing) restores with none read
     state = slam.state()
     again = GraphSlam(SlamConfig(), seed=0)
     again.restore(state)
-    assert np.array_equal(again.front_end.scan_reading[:6], fe.scan_reading[:6])
-    assert np.array_equal(again.front_end.scan_odometry[:6], fe.scan_odometry[:6])
+    assert np.array_equal(again.front_end.scans.reading[:6], fe.scans.reading[:6])
+    assert np.array_equal(again.front_end.scans.odometry[:6], fe.scans.odometry[:6])
     saved = state["front_end"].pop("scan_odometry")
     state["front_end"]["scan_odometry_heading"] = saved[:, 2]
     old = GraphSlam(SlamConfig(), seed=0)
     old.restore(state)
-    assert not old.front_end.scan_reading[:6].any()
+    assert not old.front_end.scans.reading[:6].any()
     del state["front_end"]["scan_reading"], state["front_end"]["scan_odometry_heading"]
     older = GraphSlam(SlamConfig(), seed=0)
     older.restore(state)
-    assert not older.front_end.scan_reading[:6].any()
+    assert not older.front_end.scans.reading[:6].any()
     state["front_end"]["scan_odometry"] = saved
     state["front_end"]["scan_reading"] = np.full(6, 7, np.int8)
     with pytest.raises(ValueError, match="odometry readings"):
         GraphSlam(SlamConfig(), seed=0).restore(state)
-    state["front_end"]["scan_reading"] = fe.scan_reading[:6].copy()
+    state["front_end"]["scan_reading"] = fe.scans.reading[:6].copy()
     state["front_end"]["scan_odometry"] = np.where(np.arange(6)[:, None] == 4, np.nan, saved)
     with pytest.raises(ValueError, match="finite pose"):
         GraphSlam(SlamConfig(), seed=0).restore(state)
@@ -165,14 +165,14 @@ def noisy_run(config):
     scanner's in a wide hall."""
     slam, truth, _ = run(steps=150, laps=1.0, config=config)
     fe = slam.front_end
-    n = fe.n_scans
-    node = fe.scan_node[:n]
+    n = fe.scans.n
+    node = fe.scans.node[:n]
     is_node = np.r_[True, node[1:] != node[:-1]]
     rng = np.random.default_rng(0)
-    fe.scan_reading[:n] = NEW_READING
-    fe.scan_odometry[:n] = truth[:n]
-    fe.scan_odometry[:n, 2] += np.cumsum(rng.normal(0.0, 1e-4, n))
-    fe.scan_odometry[:n, :2] += np.cumsum(rng.normal(0.0, 1e-4, (n, 2)), axis=0)
+    fe.scans.reading[:n] = NEW_READING
+    fe.scans.odometry[:n] = truth[:n]
+    fe.scans.odometry[:n, 2] += np.cumsum(rng.normal(0.0, 1e-4, n))
+    fe.scans.odometry[:n, :2] += np.cumsum(rng.normal(0.0, 1e-4, (n, 2)), axis=0)
     return slam, truth[:n], is_node, rng
 
 
@@ -183,10 +183,10 @@ def test_the_trajectory_smooths_the_headings_between_nodes_only():
                                      "front_end.smooth_between_positions": False})
     slam, truth, is_node, rng = noisy_run(config)
     fe = slam.front_end
-    fe.scan_rel[: fe.n_scans, 2] += np.where(is_node, 0.0, rng.normal(0.0, 0.01, fe.n_scans))
+    fe.scans.rel[: fe.scans.n, 2] += np.where(is_node, 0.0, rng.normal(0.0, 0.01, fe.scans.n))
     _, smoothed_poses = slam.trajectory()
-    assert fe.heading_noise.trusted(fe.config.front_end.between_significance)
-    fe.config = override(config, {"front_end.smooth_between_headings": False})
+    assert fe.scans.heading_noise.trusted(fe.config.front_end.between_significance)
+    fe.scans.config = override(config, {"front_end.smooth_between_headings": False}).front_end
     _, matched = slam.trajectory()
     assert np.array_equal(smoothed_poses[is_node], matched[is_node])
     assert np.allclose(smoothed_poses[:, :2], matched[:, :2], rtol=0, atol=1e-12)
@@ -201,11 +201,11 @@ def test_the_trajectory_smooths_the_positions_between_nodes_only():
                                      "front_end.smooth_between_headings": False})
     slam, truth, is_node, rng = noisy_run(config)
     fe = slam.front_end
-    n = fe.n_scans
-    fe.scan_rel[:n, :2] += np.where(is_node[:, None], 0.0, rng.normal(0.0, 0.02, (n, 2)))
+    n = fe.scans.n
+    fe.scans.rel[:n, :2] += np.where(is_node[:, None], 0.0, rng.normal(0.0, 0.02, (n, 2)))
     _, smoothed_poses = slam.trajectory()
-    assert fe.position_noise.trusted(fe.config.front_end.between_significance)
-    fe.config = override(config, {"front_end.smooth_between_positions": False})
+    assert fe.scans.position_noise.trusted(fe.config.front_end.between_significance)
+    fe.scans.config = override(config, {"front_end.smooth_between_positions": False}).front_end
     _, matched = slam.trajectory()
     assert np.array_equal(smoothed_poses[is_node], matched[is_node])
     assert np.array_equal(smoothed_poses[:, 2], matched[:, 2])

@@ -189,13 +189,13 @@ def test_the_front_end_fits_the_scale_where_the_scans_pin_it_and_notes_odometrys
     assert np.allclose(part[plain, 0], z[plain, 0], rtol=0.05)  # (the graph still at 1)
     assert np.all(np.abs(part[ribbed, 0]) < 0.5 * z[ribbed, 0])
     # (about 20 m of ribs against the prior's 5 m of odometry as read)
-    assert front.odometry_scale.scale == pytest.approx(1 + (1 / 0.95 - 1) * 20 / 25 - 0.005,
+    assert front.calibration.fit.scale == pytest.approx(1 + (1 / 0.95 - 1) * 20 / 25 - 0.005,
                                                        abs=0.004)
-    assert g.scale_target == pytest.approx(front.odometry_scale.scale, abs=0.002)
+    assert g.scale_target == pytest.approx(front.calibration.fit.scale, abs=0.002)
     again = GraphSlam(SlamConfig(), seed=0)
     again.restore(slam.state())
-    assert np.array_equal(again.front_end.odometry_scale.travel, front.odometry_scale.travel)
+    assert np.array_equal(again.front_end.calibration.fit.travel, front.calibration.fit.travel)
     assert np.array_equal(again.graph.odometry_part[: g.n_edges], part)
     off = _corridor(override(SlamConfig(), {"front_end.calibrate_odometry_scale": False}))
-    assert off.front_end.odometry_scale.scale == 1.0
+    assert off.front_end.calibration.fit.scale == 1.0
     assert not off.graph.odometry_part.any()

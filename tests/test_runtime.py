@@ -94,7 +94,7 @@ def test_inbox_keeps_the_newest_scan_and_counts_the_stale_ones():
         runtime.inbox.put_ranges(angles=angles, ranges=ranges, stamp=float(k), odometry=odometry)
     runtime.tick()
     assert runtime.inbox.stale == 2
-    assert runtime.slam.front_end.scan_stamp[0] == 2.0  # the newest one was taken
+    assert runtime.slam.front_end.scans.stamp[0] == 2.0  # the newest one was taken
     assert runtime.tick() is None  # nothing new: an idle tick
     assert runtime.stats.ticks == 2 and runtime.stats.scans == 1
     empty = np.full(len(angles), np.inf)
@@ -176,7 +176,7 @@ def test_capacities_reached_keep_localising_and_say_so():
     runtime = SlamRuntime(config)
     results = feed(runtime, angles, records)
     assert runtime.slam.graph.n_nodes == 12
-    assert runtime.slam.front_end.n_scans == 150
+    assert runtime.slam.front_end.scans.n == 150
     assert "capacity reached" in runtime.status
     # the pose is still tracked against the last node after the graph froze
     truth = truth_in_map(records)
@@ -351,15 +351,15 @@ def test_each_save_keeps_the_previous_good_session(saved, tmp_path):
     path = tmp_path / "s.session"
     runtime.save(path)
     first = path.read_bytes()
-    runtime.slam.front_end.lost_matches += 1  # any change
+    runtime.slam.front_end.counts.lost_matches += 1  # any change
     runtime.save(path)
     assert (tmp_path / "s.session.prev").read_bytes() == first
     # The current file is damaged (say, by a card fault): refused, pointing to the .prev one.
     path.write_bytes(path.read_bytes()[:100])
     with pytest.raises(SessionError, match=r"previous session is at .*s\.session\.prev"):
         SlamRuntime.resume(path)
-    assert SlamRuntime.resume(tmp_path / "s.session.prev").slam.front_end.lost_matches == \
-        runtime.slam.front_end.lost_matches - 1
+    assert SlamRuntime.resume(tmp_path / "s.session.prev").slam.front_end.counts.lost_matches == \
+        runtime.slam.front_end.counts.lost_matches - 1
 
 
 def test_an_interrupted_save_leaves_the_previous_file_intact(saved, tmp_path, monkeypatch):

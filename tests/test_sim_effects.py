@@ -186,7 +186,7 @@ def test_scans_overrule_stale_odometry_in_fast_turns(tmp_path):
         _, runtime = replay_run(made, config=config, label=name)
         stamps, poses = runtime.slam.trajectory()
         scores[name] = kummerle(stamps, poses, relations)
-        scores[name]["overruled"] = runtime.slam.front_end.overruled_odometry
+        scores[name]["overruled"] = runtime.slam.front_end.counts.overruled_odometry
     assert scores["defaults"]["overruled"] > 0 and scores["odometry trusted"]["overruled"] == 0
     assert scores["defaults"]["eR_short_max_deg"] < 3.0
     assert scores["odometry trusted"]["eR_short_max_deg"] > 3 * scores["defaults"][
@@ -212,7 +212,7 @@ def test_a_pivot_crowded_by_people_is_found_on_the_fine_field(tmp_path):
         _, runtime = replay_run(made, config=config, label=name, seed=67)
         stamps, poses = runtime.slam.trajectory()
         worst[name] = kummerle(stamps, poses, relations)["eR_short_max_deg"]
-        sought[name] = runtime.slam.front_end.sought_matches
+        sought[name] = runtime.slam.front_end.counts.sought_matches
     assert sought["defaults"] >= 1 and sought["off"] == 0
     assert worst["defaults"] < 5.0, worst
     assert worst["off"] > 20.0, worst

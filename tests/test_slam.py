@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from swarmslam.runtime.config import SlamConfig, override
-from swarmslam.runtime.front_end import _unbeatable, scans_overrule
+from swarmslam.runtime.odometry_gate import _unbeatable, scans_overrule
 from swarmslam.runtime.pose import between, compose, wrap_angle
 from swarmslam.runtime.pose_graph import LOOP
 from swarmslam.runtime.scan import PointScan
@@ -180,7 +180,7 @@ def test_scans_only_recovers_after_a_gap_in_the_stream():
         slam.step(scan, None, float(k))
     _, poses = slam.trajectory()
     err = np.hypot(*(poses[:, :2] - between(path[kept], path[0])[:, :2]).T)
-    assert slam.front_end.lost_matches >= 1
+    assert slam.front_end.counts.lost_matches >= 1
     assert err.max() < 0.15, err.max()
 
 
@@ -191,7 +191,7 @@ def test_scans_between_two_nodes_share_the_graphs_correction_of_both():
                                                     "front_end.smooth_between_positions": False}))
     fe, g = slam.front_end, slam.graph
     stamps, before = slam.trajectory()
-    node = fe.scan_node[: fe.n_scans]
+    node = fe.scans.node[: fe.scans.n]
     m = int(np.argmax(np.bincount(node)[: g.n_nodes - 2]))  # the node that tracked most scans
     between_nodes = node == m
     assert between_nodes.sum() >= 3
@@ -205,9 +205,9 @@ def test_scans_between_two_nodes_share_the_graphs_correction_of_both():
     assert np.allclose(moved[node < m], 0.0, atol=1e-12)
     assert np.allclose(moved[node > m, 0], 0.3, atol=1e-12)
     # Off, each scan moves with its tracking node alone.
-    fe.config = override(slam.config, {"front_end.spread_corrections": False})
+    fe.scans.config = override(slam.config, {"front_end.spread_corrections": False}).front_end
     _, rigid = slam.trajectory()
-    tracked = fe.scan_rel[: fe.n_scans][between_nodes]
+    tracked = fe.scans.rel[: fe.scans.n][between_nodes]
     assert np.allclose(rigid[between_nodes], compose(g.poses[m], tracked))
 
 
@@ -218,7 +218,7 @@ def test_submap_reference_tracks_and_closes_the_loop():
     assert slam.loops_closed >= 1
     assert err.max() < 0.15 and err.mean() < 0.05, (err.max(), err.mean())
     # The reference really holds several scans: more points than the newest scan alone.
-    assert slam.front_end._submap.count > slam.nodes.counts[slam.keyframe]
+    assert slam.front_end.submap.scan.count > slam.nodes.counts[slam.keyframe]
 
 
 def _glitch_run(config, glitch_at=20, glitch_turn_deg=12.0):
@@ -250,13 +250,13 @@ def test_match_contradicting_odometry_is_not_trusted_unless_the_scans_clearly_si
     slam, heading_error = _glitch_run(refused)
     # (the glitch scan became a node here, so the next scans match against it until the next
     # node: also gated)
-    assert 1 <= slam.front_end.lost_matches <= 3 and slam.front_end.overruled_odometry == 0
+    assert 1 <= slam.front_end.counts.lost_matches <= 3 and slam.front_end.counts.overruled_odometry == 0
     assert heading_error[20] < 1.5 and heading_error.max() < 1.5, heading_error
     trusted, heading_error = _glitch_run(SlamConfig())
-    assert trusted.front_end.overruled_odometry >= 1
+    assert trusted.front_end.counts.overruled_odometry >= 1
     assert heading_error[20] > 8.0, heading_error[20]
     ungated, heading_error = _glitch_run(override(SlamConfig(), {"front_end.odometry_gate": None}))
-    assert ungated.front_end.lost_matches == 0 and ungated.front_end.overruled_odometry == 0
+    assert ungated.front_end.counts.lost_matches == 0 and ungated.front_end.counts.overruled_odometry == 0
     assert heading_error[20] > 8.0, heading_error[20]
 
 
@@ -289,11 +289,11 @@ def test_a_rescued_match_within_the_gate_stands_when_it_fits_far_better():
         return compose(path[k], [0.0, 0.0, jump]) if k >= 6 else path[k]
 
     slam, errors = _heading_errors(SlamConfig(), world, path, reading, 1.0)
-    assert slam.front_end.rescued_matches >= 1, errors
+    assert slam.front_end.counts.rescued_matches >= 1, errors
     assert errors.max() < 1.0, errors
     refused = override(SlamConfig(), {"front_end.odometry_gate_explained": 1.0})
     slam, errors = _heading_errors(refused, world, path, reading, 1.0)
-    assert slam.front_end.rescued_matches == 0
+    assert slam.front_end.counts.rescued_matches == 0
     assert errors[6] > 15.0, errors
 
 
@@ -328,7 +328,7 @@ def test_a_match_that_only_moves_odometrys_position_does_not_overrule_it():
         seen = compose(path[k], [0.0, 0.25, 0.0]) if k == 20 else path[k]
         scan.set_ranges(scan_at(world, seen, ANGLES, 12.0, 0.01), ANGLES, 0.05, 12.0)
         slam.step(scan, path[k], float(k))
-    assert slam.front_end.lost_matches >= 1 and slam.front_end.overruled_odometry == 0
+    assert slam.front_end.counts.lost_matches >= 1 and slam.front_end.counts.overruled_odometry == 0
     _, poses = slam.trajectory()
     truth = between(path, path[0])
     assert np.hypot(*(poses[:, :2] - truth[:, :2]).T).max() < 0.1
@@ -349,7 +349,7 @@ def test_a_stale_reading_is_not_counted_twice():
     align = fe.matcher.align_scans
 
     def recording(scan_, reference, guess=None, window=None):
-        predicted.setdefault(fe.n_scans, compose(slam.graph.poses[fe.keyframe], guess))
+        predicted.setdefault(fe.scans.n, compose(slam.graph.poses[fe.keyframe], guess))
         return align(scan_, reference, guess, window)
 
     fe.matcher.align_scans = recording
@@ -360,7 +360,7 @@ def test_a_stale_reading_is_not_counted_twice():
     for k in range(3, len(path), 3):  # a new reading lands the prediction on the truth
         assert np.hypot(*(predicted[k][:2] - truth[k, :2])) < 0.05
         assert abs(wrap_angle(predicted[k][2] - truth[k, 2])) < np.radians(1.0)
-    assert fe.lost_matches == fe.rescued_matches
+    assert fe.counts.lost_matches == fe.counts.rescued_matches
     _, poses = slam.trajectory()
     assert np.hypot(*(poses[:, :2] - truth[:, :2]).T).max() < 0.05
 
@@ -389,7 +389,7 @@ def _hall_with_a_wall_held_twice(config, seed):
             errors.append(abs(np.degrees(wrap_angle(heading))))
         if len(errors) == 1:
             slam.graph.poses[fe.keyframe - 1, 2] += np.radians(4.5)
-            fe.rebuild_reference()
+            fe.submap.rebuild(fe.keyframe)
     return fe, np.array(errors[1:])
 
 
@@ -400,10 +400,10 @@ def _worst_without_and_with(without, with_rule, counter):
     worst_without, worst_with, acted = [], [], 0
     for seed in range(4):
         fe, errors = _hall_with_a_wall_held_twice(without, seed)
-        assert getattr(fe, counter) == 0
+        assert getattr(fe.counts, counter) == 0
         worst_without.append(errors.max())
         fe, errors = _hall_with_a_wall_held_twice(with_rule, seed)
-        acted += getattr(fe, counter)
+        acted += getattr(fe.counts, counter)
         worst_with.append(errors.max())
     return worst_without, worst_with, acted
 
@@ -665,10 +665,10 @@ def test_a_stale_reading_continues_the_last_readings_motion_along_a_corridor():
     showed (``stale_motion``; docs/method.md §6.1), so every scan moves its 0.1 m."""
     fe, errors = _corridor_with_stale_odometry(
         override(SlamConfig(), {"front_end.stale_motion": False}))
-    assert fe.degenerate_matches > 20
+    assert fe.counts.degenerate_matches > 20
     assert errors.max() > 0.15, errors
     fe, errors = _corridor_with_stale_odometry(SlamConfig())
-    assert fe.degenerate_matches > 20
+    assert fe.counts.degenerate_matches > 20
     assert errors[4:].max() < 0.03 and errors[4:].mean() < 0.01, errors  # from the 1st reading on
 
 
@@ -716,7 +716,7 @@ def test_a_repeated_reading_at_rest_predicts_no_motion():
     align = fe.matcher.align_scans
 
     def recording(scan_, reference, guess=None, window=None):
-        guesses.setdefault(fe.n_scans, (guess.copy(), fe.rel.copy()))
+        guesses.setdefault(fe.scans.n, (guess.copy(), fe.rel.copy()))
         return align(scan_, reference, guess, window)
 
     fe.matcher.align_scans = recording
@@ -749,7 +749,7 @@ def test_a_match_pressed_against_its_box_is_sought_again_around_itself():
         scan.set_ranges(scan_at(world, path[k], ANGLES, 12.0, 0.01), ANGLES, 0.05, 12.0)
         headings.append(slam.step(scan, path[max(k - 1, 0)], float(k)).pose[2])
     errors = np.degrees(np.abs(wrap_angle(np.array(headings) - truth[:, 2])))
-    assert slam.front_end.rescued_matches >= 2, errors
+    assert slam.front_end.counts.rescued_matches >= 2, errors
     assert errors.max() < 1.0, errors
 
 
@@ -770,7 +770,7 @@ def test_a_pivot_beyond_every_box_is_found_over_the_turn_the_robot_can_make():
         return path[k - k % 2]
 
     slam, errors = _heading_errors(SlamConfig(), world, path, every_second_scan, 0.5)
-    assert slam.front_end.rescued_matches >= 2 and errors.max() < 1.0, errors
+    assert slam.front_end.counts.rescued_matches >= 2 and errors.max() < 1.0, errors
     off = override(SlamConfig(), {"front_end.pivot_search_rate": 0.0})
     slam, errors = _heading_errors(off, world, path, every_second_scan, 0.5)
     assert errors[5] > 70.0 and errors[7] > 70.0, errors
@@ -818,10 +818,10 @@ def test_a_match_that_turns_odometrys_heading_past_the_gates_own_part_is_not_a_s
     step = np.array([0.3, 0.0, np.radians(60.0)])
     turned = compose(pose, [0.35, 0.0, np.radians(12.0)])
     slid = compose(pose, [0.35, 0.0, 0.0])
-    fit = fe._inliers(scan, pose)
+    fit = fe.gate.fit(scan, pose)
     assert fit > 0.9
-    assert fe._overrules(scan, pose, fit, turned, step, True)
-    assert not fe._overrules(scan, pose, fit, slid, step, True)
+    assert fe.gate.overrules(scan, pose, fit, turned, step, True, False)
+    assert not fe.gate.overrules(scan, pose, fit, slid, step, True, False)
 
 
 def test_a_prediction_that_would_count_as_lost_is_no_place_to_slide_from():
@@ -831,12 +831,12 @@ def test_a_prediction_that_would_count_as_lost_is_no_place_to_slide_from():
     cannot be (MIT-CSAIL) — and the match fitting them all stands (docs/method.md §6.1)."""
     fe, scan, pose = _tracked_in_a_room()
     step = np.array([0.3, 0.0, 0.0])
-    fit = fe._inliers(scan, pose)
+    fit = fe.gate.fit(scan, pose)
     near, far = compose(pose, [0.35, 0.0, 0.0]), compose(pose, [0.6, 0.0, 0.0])
     limit = fe.config.front_end.min_track_inliers
-    assert fe._inliers(scan, near) >= limit > fe._inliers(scan, far)
-    assert not fe._overrules(scan, pose, fit, near, step, True)
-    assert fe._overrules(scan, pose, fit, far, step, True)
+    assert fe.gate.fit(scan, near) >= limit > fe.gate.fit(scan, far)
+    assert not fe.gate.overrules(scan, pose, fit, near, step, True, False)
+    assert fe.gate.overrules(scan, pose, fit, far, step, True, False)
 
 
 def _tracked_in_a_room():

@@ -190,7 +190,7 @@ class TruthOracle:
         self.slam = slam
         fe, be = slam.front_end, slam.back_end
         fe_align, be_align = fe.matcher.align_scans, be.matcher.align_scans
-        align_loop, constrained = be.align_loop, fe._constrained
+        align_loop, constrained = be.align_loop, fe.degeneracy.constrain
 
         def front(scan, reference, guess=None, window=None):
             return fe_align(scan, reference, self._true_rel(), window)
@@ -210,7 +210,7 @@ class TruthOracle:
             return align_loop(candidate, node, guess, window)
 
         fe.matcher.align_scans, be.matcher.align_scans, be.align_loop = front, back, loop
-        fe._constrained = constrained_at_truth
+        fe.degeneracy.constrain = constrained_at_truth
 
 
 def run_case(case: Case, work: Path, config: SlamConfig | None = None, floor: bool = True,
