@@ -29,7 +29,7 @@ import numpy as np
 from numba import njit
 
 from swarmslam.runtime.config import LoopClosureConfig
-from swarmslam.runtime.pose import between, wrap_angle
+from swarmslam.runtime.pose import between, compose, wrap_angle
 
 CHI2_2D_95 = 5.991
 
@@ -221,6 +221,64 @@ class LoopCloser:
         chi2 = graph.edge_chi2()
         return (float(chi2[edge]) <= c.chi2_gate,
                 float(np.sum(chi2)) - total_before <= c.total_gate)
+
+
+class VerdictMemory:
+    """What step 4 remembers of the loops it refused (docs/method.md §5, step 4): the last loop
+    refused for the rise of the total alone (its own error passed), and the last refused for
+    its own error (the graph could not absorb it) with its information. Each is its candidate,
+    its node and its measurement, the candidate −1 when there is none. A later loop that agrees
+    with the first is judged by its own error; one that agrees with the second may take the
+    place of the kept loops the two strain most."""
+
+    def __init__(self, config: LoopClosureConfig):
+        self.config = config
+        self.rise_refused = np.array([-1.0, -1.0, 0.0, 0.0, 0.0])
+        self.strained = np.array([-1.0, -1.0, 0.0, 0.0, 0.0])
+        self.strained_info = np.zeros((3, 3))
+
+    def agrees(self, refused, graph, candidate: int, node: int, z) -> bool:
+        """Whether the loop ``candidate`` → ``node`` (measurement ``z``) agrees with one
+        refused before (``refused``: :attr:`rise_refused` or :attr:`strained`): made from a
+        node at most ``agreement_nodes`` before ``node``, and placing ``node`` within
+        ``agreement_distance`` and ``agreement_angle`` of where this one does, through the
+        graph's short chains between the two nodes and between the two candidates. Two scans
+        matched apart that put the robot in the same place of the old map are evidence that
+        the drift the rise measures is real, or that a kept loop the two contradict is not."""
+        c = self.config
+        old, was = int(refused[0]), int(refused[1])
+        if old < 0 or not 0 < node - was <= c.agreement_nodes:
+            return False
+        p = graph.poses
+        there = compose(compose(p[old], refused[2:]), between(p[node], p[was]))
+        here = compose(p[candidate], z)
+        return bool(math.hypot(here[0] - there[0], here[1] - there[1]) <= c.agreement_distance
+                    and abs(wrap_angle(here[2] - there[2])) <= c.agreement_angle)
+
+    @staticmethod
+    def remember(refused, candidate: int, node: int, z) -> None:
+        refused[:2] = candidate, node
+        refused[2:] = z
+
+    def state(self) -> dict:
+        return {"rise_refused": self.rise_refused.copy(), "strained": self.strained.copy(),
+                "strained_info": self.strained_info.copy()}
+
+    def restore(self, state: dict, n_nodes: int) -> None:
+        refused = np.asarray(state.get("rise_refused", [-1.0, -1.0, 0.0, 0.0, 0.0]), np.float64)
+        if (refused.shape != (5,) or not np.all(np.isfinite(refused))
+                or not -1 <= refused[0] < n_nodes or not -1 <= refused[1] < n_nodes):
+            raise ValueError("the loop refused for its rise refers to nodes that do not exist")
+        # (saved before a strained loop was kept: none)
+        strained = np.asarray(state.get("strained", [-1.0, -1.0, 0.0, 0.0, 0.0]), np.float64)
+        info = np.asarray(state.get("strained_info", np.zeros((3, 3))), np.float64)
+        if (strained.shape != (5,) or info.shape != (3, 3) or not np.all(np.isfinite(strained))
+                or not np.all(np.isfinite(info)) or not -1 <= strained[0] < n_nodes
+                or not -1 <= strained[1] < n_nodes):
+            raise ValueError("the loop refused for its own error refers to nodes that do not "
+                             "exist")
+        self.rise_refused[:] = refused
+        self.strained[:], self.strained_info[:] = strained, info
 
 
 def turn_rate(graph, k: int, before: int) -> float:

@@ -300,7 +300,7 @@ def test_a_loop_edge_in_a_corridor_keeps_only_the_floor_along_the_corridor():
     base = back.information(loop=True)
     assert back.z_info[1, 1] > 0.99 * base[1, 1] and back.z_info[2, 2] > 0.99 * base[2, 2]
     at_truth = np.zeros(3)  # where the scans align, and the swarm's match lies
-    d = Degeneracy(back.matcher.curvature(scan, back.reference, at_truth, (0.05, 0.01)), 0.12,
+    d = Degeneracy(back.matcher.curvature(scan, back.alignment.reference, at_truth, (0.05, 0.01)), 0.12,
                    floor)
     assert d.degenerate and d.share > 5 * floor
     assert abs(back.z_info[0, 0] / base[0, 0] - floor) < 1e-3 * floor

@@ -621,7 +621,7 @@ def test_the_budgeted_runtime_commits_its_buffers_at_start_up():
                                     "capacity.max_scans": 1000})
     budgeted = SlamRuntime(small)
     slam = budgeted.slam
-    grids = slam.front_end.reference.field.nbytes + slam.back_end.reference.field.nbytes
+    grids = slam.front_end.reference.field.nbytes + slam.back_end.alignment.reference.field.nbytes
     assert budgeted.reserved_bytes >= slam.nodes.points.nbytes + grids
     lockstep = SlamRuntime(override(small, {"runtime.schedule": "lockstep"}))
     assert lockstep.reserved_bytes == 0  # the simulator's schedule: nothing committed
@@ -675,7 +675,7 @@ def test_a_closure_on_trial_is_optimised_a_step_per_slice_while_the_front_end_ad
     slam, back, candidate, node = trial_ready(mapped)
     g = slam.graph
     edges, before = g.n_edges, g.poses[:n].copy()
-    steps = back._close_steps(candidate, node, back.z)
+    steps = back.closure.steps(candidate, node, back.z, back.z_info, False)
     next(steps)  # the first step: more are to come
     assert g.n_edges == edges and np.array_equal(g.poses[:n], before)
     step = np.array([0.3, 0.02, 0.05])
@@ -683,7 +683,7 @@ def test_a_closure_on_trial_is_optimised_a_step_per_slice_while_the_front_end_ad
     with pytest.raises(StopIteration) as stop:
         while True:
             next(steps)
-    assert stop.value.value is True
+    assert stop.value.value == candidate  # kept: the edge's old end
     assert np.array_equal(g.poses[:n], atomic[:n])  # the same solve, only later
     assert tuple(g.ij[g.n_edges - 1]) == (candidate, node) and g.kind[g.n_edges - 1] == LOOP
     assert g.n_edges == edges + 3  # two node edges, then the loop edge
@@ -696,7 +696,7 @@ def test_a_closure_on_trial_is_optimised_a_step_per_slice_while_the_front_end_ad
 def test_a_closure_refused_after_its_slices_leaves_the_graph_as_the_front_end_left_it(mapped):
     slam, back, candidate, node = trial_ready(mapped, z_offset=(3.0, -2.0, 0.8))
     g = slam.graph
-    steps = back._close_steps(candidate, node, back.z)
+    steps = back.closure.steps(candidate, node, back.z, back.z_info, False)
     next(steps)
     add_node_as_front_end(g, np.array([0.3, 0.0, 0.0]))
     edges, before = g.n_edges, g.poses[: g.n_nodes].copy()
@@ -704,7 +704,7 @@ def test_a_closure_refused_after_its_slices_leaves_the_graph_as_the_front_end_le
     with pytest.raises(StopIteration) as stop:
         while True:
             next(steps)
-    assert stop.value.value is False and back.loops.rejected_consistency == rejected + 1
+    assert stop.value.value == -1 and back.loops.rejected_consistency == rejected + 1
     assert g.n_edges == edges and np.array_equal(g.poses[: g.n_nodes], before)
 
 

@@ -443,7 +443,7 @@ def test_loop_reference_is_a_submap_around_the_candidate():
     node, candidate = g.n_nodes - 1, 5
     assert k >= 1
     slam.back_end.align_loop(candidate, node)  # builds the submap, whatever the match
-    submap = slam.back_end._submap
+    submap = slam.back_end.alignment.submap
     counts = slam.nodes.counts[candidate - k : candidate + k + 1]
     assert submap.count == counts.sum()
     # Each neighbour's scan sits where the graph puts it: back in the world, it lands on its
@@ -458,7 +458,7 @@ def test_loop_reference_is_a_submap_around_the_candidate():
     # Near the new node the submap stops short of its neighbours (they are not a loop).
     recent = node - slam.config.loop_closure.exclude_recent
     slam.back_end.align_loop(recent, node)
-    assert slam.back_end._submap.count == slam.nodes.counts[recent - k : recent + 1].sum()
+    assert slam.back_end.alignment.submap.count == slam.nodes.counts[recent - k : recent + 1].sum()
 
 
 def test_closure_spacing_skips_the_search_just_after_a_closure():
@@ -539,7 +539,7 @@ def test_a_loop_refused_for_the_drift_it_repairs_is_kept_when_the_next_agrees(mo
     slam, back, z = _drifted_chain(SlamConfig())
     loops, n = back.loops, slam.graph.n_nodes
     assert not back.close_loop(0, n - 2, z) and loops.rejected_consistency == 1
-    assert back.rise_refused[1] == n - 2
+    assert back.closure.memory.rise_refused[1] == n - 2
     assert back.close_loop(1, n - 1, z + [moved, 0.0, 0.0]) is kept
     assert loops.agreed == int(kept) and loops.rejected_consistency == 2 - int(kept)
     if kept:  # the drift repaired: the far end, 1.48 m long, pulled back near the truth
@@ -610,7 +610,7 @@ def test_two_loops_that_agree_give_up_the_kept_loops_they_contradict(given_up):
     bent, edges = abs(g.poses[55, 1]), g.n_edges
     assert bent > 2.0  # the drift the wrong loops hold
     assert not back.close_loop(4, 55, z)  # right, refused: the graph cannot absorb it
-    assert back.strained[1] == 55 and loops.rejected_consistency == 1
+    assert back.closure.memory.strained[1] == 55 and loops.rejected_consistency == 1
     kept = back.close_loop(5, 56, z)  # the next agrees
     assert kept is (given_up > 0) and loops.agreed == 0
     wrong = {(0, 50), (1, 51), (2, 52)}
