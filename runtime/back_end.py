@@ -26,6 +26,8 @@ drops its oldest node's search (counted; the runtime's status says so).
 
 from __future__ import annotations
 
+from dataclasses import asdict, dataclass
+
 import numpy as np
 
 from swarmslam.runtime.config import SlamConfig
@@ -34,10 +36,22 @@ from swarmslam.runtime.loop_closure import LoopCloser
 from swarmslam.runtime.loop_trial import ClosureTrial
 from swarmslam.runtime.node_scans import NodeScans
 from swarmslam.runtime.pose_graph import LOOP, PoseGraph
+from swarmslam.runtime.session import restore_counts
 from swarmslam.runtime.wide_loop_search import WideLoopSearch
 
 SELECT, ALIGN, CLOSE, WIDE = 0, 1, 2, 3
 SLICE_NAMES = ("select", "align", "close", "wide")
+
+
+@dataclass
+class SearchCounts:
+    """The queue's and the slicing's tallies, saved with a session and reported whole."""
+
+    enqueued: int = 0  # node searches queued
+    searched: int = 0  # node searches finished
+    dropped: int = 0  # searches dropped from a full queue
+    deferred: int = 0  # ticks that ended with back-end work left undone for lack of time
+    forced: int = 0  # slices run over budget after waiting max_deferred_ticks
 
 
 class BackEnd:
@@ -83,12 +97,8 @@ class BackEnd:
         # that fitted its scan nowhere)
         self.cost = np.zeros(len(SLICE_NAMES))  # expected seconds per slice kind (decaying max)
         self.waited = 0  # ticks the next slice has been deferred in a row
-        self.enqueued = 0
-        self.searched = 0  # node searches finished
-        self.dropped = 0  # searches dropped from a full queue
-        self.slices = np.zeros(len(SLICE_NAMES), np.int64)
-        self.deferred = 0  # ticks that ended with back-end work left undone for lack of time
-        self.forced = 0  # slices run over budget after waiting max_deferred_ticks
+        self.counts = SearchCounts()
+        self.slices = np.zeros(len(SLICE_NAMES), np.int64)  # slices run, by kind
         self._slice = (self._select, self._align, self._close, self._wide)  # by kind
 
     @property
@@ -102,10 +112,10 @@ class BackEnd:
         if self.size == cap:  # drop the oldest search
             self.head = (self.head + 1) % cap
             self.size -= 1
-            self.dropped += 1
+            self.counts.dropped += 1
         self.queue[(self.head + self.size) % cap] = node
         self.size += 1
-        self.enqueued += 1
+        self.counts.enqueued += 1
 
     def pending(self) -> bool:
         return self.node >= 0 or self.size > 0
@@ -128,9 +138,9 @@ class BackEnd:
             if budget_end is not None and start + self.cost[kind] > budget_end:
                 if self.waited < rc.max_deferred_ticks:
                     self.waited += 1
-                    self.deferred += 1
+                    self.counts.deferred += 1
                     break
-                self.forced += 1
+                self.counts.forced += 1
             self._run_slice(kind, budget_end is not None)
             self.slices[kind] += 1
             self.waited = 0
@@ -276,7 +286,7 @@ class BackEnd:
         self.node = -1
         self.phase = SELECT
         self.widened = False
-        self.searched += 1
+        self.counts.searched += 1
 
     # ------------------------------------------------------------------ Alg. 7's steps
     def seek_loop_closure(self, node: int) -> bool:
@@ -309,11 +319,9 @@ class BackEnd:
 
     # ------------------------------------------------------------------ state
     def state(self) -> dict:
-        loops = self.loops
         return {
-            "matcher": self.matcher.state(),
-            "loops": [loops.attempts, loops.accepted, loops.rejected_match,
-                      loops.rejected_consistency],
+            "matcher": self.matcher.state(), "counts": asdict(self.counts),
+            "loops": asdict(self.loops.counts), "slices": self.slices.copy(),
             "queue": np.array(self.queued(), np.int64),
             "candidates": self.candidates[: self.n_candidates].copy(),
             "z": self.z.copy(), "z_info": self.z_info.copy(), "cost": self.cost.copy(),
@@ -322,12 +330,9 @@ class BackEnd:
             "wide_from": self.wide_from,
             "failed": self.failed[: self.n_failed].copy(), "failed_node": self.failed_node,
             "failed_revision": self.failed_revision,
-            "slices": self.slices.copy(),
             "node": self.node, "phase": self.phase, "next_candidate": self.next_candidate,
-            "waited": self.waited, "enqueued": self.enqueued, "searched": self.searched,
-            "dropped": self.dropped, "deferred": self.deferred, "forced": self.forced,
-            "revision": self.revision, "status": self.status, **self.closure.memory.state(),
-            "agreed": loops.agreed, "given_up": loops.given_up, "reanchored": loops.reanchored,
+            "waited": self.waited, "revision": self.revision, "status": self.status,
+            **self.closure.memory.state(),
         }
 
     def restore(self, state: dict) -> None:
@@ -340,7 +345,7 @@ class BackEnd:
                              f"{self.candidates.shape[0]}")
         n = self.graph.n_nodes
         node = int(state["node"])
-        failed = np.asarray(state.get("failed", ()), np.int64)  # older sessions: none
+        failed = np.asarray(state["failed"], np.int64)
         if (any(not 0 <= int(v) < n for v in (*queue, *cand, *failed)) or not -1 <= node < n
                 or len(failed) > self.failed.shape[0]):
             raise ValueError("the loop search refers to nodes that do not exist")
@@ -348,9 +353,8 @@ class BackEnd:
                 or not 0 <= int(state["next_candidate"]) <= len(cand)):
             raise ValueError("the loop search is in a state it never takes")
         self.matcher.restore(state["matcher"])
-        loops = self.loops
-        (loops.attempts, loops.accepted, loops.rejected_match,
-         loops.rejected_consistency) = (int(v) for v in state["loops"])
+        restore_counts(self.counts, state["counts"])
+        restore_counts(self.loops.counts, state["loops"])
         self.head, self.size = 0, len(queue)
         self.queue[: self.size] = queue
         self.n_candidates = len(cand)
@@ -363,21 +367,16 @@ class BackEnd:
         self._wide_steps = None  # a wide search under way begins again: it keeps no state
         self._closing = None  # and so does a closure on trial (the graph holds no trial edge)
         self.last_closure = int(state["last_closure"])
-        self.wide_from = int(state.get("wide_from", 0))  # older sessions: none kept
+        self.wide_from = int(state["wide_from"])
         self.n_failed = len(failed)
         self.failed[: self.n_failed] = failed
-        self.failed_node = int(state.get("failed_node", -1))
-        self.failed_revision = int(state.get("failed_revision", -1))
+        self.failed_node = int(state["failed_node"])
+        self.failed_revision = int(state["failed_revision"])
         self.node = node
-        (self.phase, self.next_candidate, self.waited, self.enqueued, self.searched,
-         self.dropped, self.deferred, self.forced, self.revision) = (
-            int(state[k]) for k in ("phase", "next_candidate", "waited", "enqueued", "searched",
-                                    "dropped", "deferred", "forced", "revision"))
+        self.phase, self.next_candidate, self.waited, self.revision = (
+            int(state[k]) for k in ("phase", "next_candidate", "waited", "revision"))
         self.closure.status = str(state["status"])
         self.closure.memory.restore(state, n)
-        loops.agreed = int(state.get("agreed", 0))
-        loops.given_up = int(state.get("given_up", 0))
-        loops.reanchored = int(state.get("reanchored", 0))  # (0: saved before the rule)
 
 
 def _advance(steps, sliced: bool):

@@ -38,6 +38,7 @@ from swarmslam.runtime.recovery import Recovery
 from swarmslam.runtime.scan import PointScan
 from swarmslam.runtime.scan_matcher import ScanMatcher
 from swarmslam.runtime.scan_trajectory import ScanTrajectory
+from swarmslam.runtime.session import restore_counts
 from swarmslam.runtime.sweep_motion import SweepMotion
 
 CAPACITY_STATUS = "capacity reached: localising against the last node, map frozen"
@@ -285,26 +286,18 @@ class FrontEnd:
         n = self.graph.n_nodes
         self.scans.restore(state, n)
         self.matcher.restore(state["matcher"])
-        k = self.scans.n
         self.initial_pose[:] = state["initial_pose"]
         self.rel[:], self.motion[:] = state["rel"], state["motion"]
         self.readings.restore(state)
         self.weak = bool(state["weak"])
         self.status = str(state["status"])
-        counts = state["counts"] if "counts" in state else {
-            key: state[key] for key in ("lost_matches", "degenerate_matches")}
-        for key, value in counts.items():
-            setattr(self.counts, key, int(value))
+        restore_counts(self.counts, state["counts"])
         self.keyframe = int(state["keyframe"])
-        # a session saved before stale readings were told apart predicts from its last scan
-        self.odometry_rel[:] = state.get("odometry_rel", self.rel)
+        self.odometry_rel[:] = state["odometry_rel"]
         self.calibration.restore(state)
-        # (saved before the sweep was undistorted: the trajectory's last stamp; no motion's
-        # interval, so the next scan's first pass leaves its sweep as it came)
-        self.last_stamp = float(state.get("last_stamp",
-                                          self.scans.stamp[k - 1] if k else math.nan))
-        self.last_interval = float(state.get("last_interval", math.nan))
+        self.last_stamp = float(state["last_stamp"])
+        self.last_interval = float(state["last_interval"])
         if self.keyframe >= 0 and not 0 <= self.keyframe < n:
             raise ValueError(f"keyframe {self.keyframe} is not a stored node")
-        self.gate.previous.restore(state.get("previous_points", np.zeros((0, 2))))
+        self.gate.previous.restore(state["previous_points"])
         self.submap.restore(state, self.keyframe)

@@ -204,11 +204,11 @@ class ScanInbox:
         start a new log, with its own clock and odometry)."""
         self.received, self.stale = int(state["received"]), int(state["stale"])
         self.empty = int(state["empty"])
-        self.bad_stamps = int(state.get("bad_stamps", 0))
-        self.odometry_non_finite = int(state.get("odometry_non_finite", 0))
-        self.odometry_jumps = int(state.get("odometry_jumps", 0))
-        self.odometry_out_of_range = int(state.get("odometry_out_of_range", 0))
-        self.cut = int(state.get("cut", 0))
+        self.bad_stamps = int(state["bad_stamps"])
+        self.odometry_non_finite = int(state["odometry_non_finite"])
+        self.odometry_jumps = int(state["odometry_jumps"])
+        self.odometry_out_of_range = int(state["odometry_out_of_range"])
+        self.cut = int(state["cut"])
 
 
 SKIPPED = {"empty_scans": "scans with no return", "bad_stamp_scans": "bad timestamps",

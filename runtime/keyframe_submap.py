@@ -67,8 +67,7 @@ class KeyframeSubmap:
         """The submap :meth:`state` gave, for ``keyframe`` of the restored graph; its reference
         rebuilt."""
         n = self.graph.n_nodes
-        members = state.get("submap_nodes", np.zeros(0, np.int64))
-        poses = state.get("submap_poses", np.zeros((0, 3)))
+        members, poses = state["submap_nodes"], state["submap_poses"]
         if (len(members) > self.members.shape[0] or poses.shape != (len(members), 3)
                 or np.any(members < 0) or np.any(members >= n)
                 or (len(members) and members[-1] != keyframe)
@@ -79,5 +78,5 @@ class KeyframeSubmap:
         self.members[: self.n] = members
         self.poses[: self.n] = poses
         if keyframe >= 0:
-            # a session saved before the submap was kept (or of one scan) places it by the graph
+            # (a submap of the keyframe's scan alone keeps no poses: it is placed by the graph)
             self.rebuild(keyframe, placed=self.n > 0)

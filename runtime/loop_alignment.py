@@ -56,7 +56,7 @@ class LoopAlignment:
         search's own (docs/method.md §5, step 5)."""
         loops = self.loops
         c = loops.config
-        loops.attempts += 1
+        loops.counts.attempts += 1
         members = self._members
         proposal = guess is not None
         if not proposal:
@@ -76,7 +76,7 @@ class LoopAlignment:
         match = self.matcher.align_inside(scan, submap, self.reference, guess, window,
                                           c.window_margin)
         if match is None or beyond_margin(match.pose, guess, window, c.window_margin):
-            loops.rejected_match += 1  # at or beyond the box
+            loops.counts.rejected_match += 1  # at or beyond the box
             return None
         pose, reference = match.pose, self.reference
         self.z_info[:] = self.information(loop=True)
@@ -110,5 +110,5 @@ class LoopAlignment:
         if inliers >= c.min_inliers or (on >= c.min_overlap * scan.count
                                         and through <= c.max_violations * (on + through)):
             return pose
-        loops.rejected_match += 1
+        loops.counts.rejected_match += 1
         return None

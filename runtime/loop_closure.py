@@ -24,6 +24,7 @@ the consistency test that replaces the literal "error did not grow" rule.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -137,6 +138,19 @@ def visibility(points, counts, poses, members, n_members, frame, scan, n, x, y, 
             out[1] += 1
 
 
+@dataclass
+class LoopCounts:
+    """The loop search's tallies, saved with a session and reported whole."""
+
+    attempts: int = 0  # candidates aligned
+    accepted: int = 0  # loop edges kept
+    rejected_match: int = 0  # alignments refused (at the box's edge, or too few inliers)
+    rejected_consistency: int = 0  # aligned loops the consistency test refused
+    agreed: int = 0  # loops kept past the rise test by agreeing with one refused by it
+    given_up: int = 0  # kept loops given up for two later ones that agree
+    reanchored: int = 0  # loop edges tried from a steadier node than their candidate
+
+
 class LoopCloser:
     """Buffers for candidate search (allocated once) and the closure statistics."""
 
@@ -144,13 +158,7 @@ class LoopCloser:
         self.config = config
         self._idx = np.zeros(config.max_candidates * 4, np.int64)
         self._d2 = np.zeros(config.max_candidates * 4)
-        self.attempts = 0
-        self.accepted = 0
-        self.rejected_match = 0
-        self.rejected_consistency = 0
-        self.agreed = 0  # loops kept past the rise test by agreeing with one refused by it
-        self.given_up = 0  # kept loops given up for two later ones that agree (back end)
-        self.reanchored = 0  # loop edges tried from a steadier node than their candidate
+        self.counts = LoopCounts()
 
     def candidates(self, graph, node_cov, node: int) -> list[int]:
         """Steps 1–2: nearby nodes inside the 95% ellipse of the relative position."""
@@ -265,13 +273,12 @@ class VerdictMemory:
                 "strained_info": self.strained_info.copy()}
 
     def restore(self, state: dict, n_nodes: int) -> None:
-        refused = np.asarray(state.get("rise_refused", [-1.0, -1.0, 0.0, 0.0, 0.0]), np.float64)
+        refused = np.asarray(state["rise_refused"], np.float64)
         if (refused.shape != (5,) or not np.all(np.isfinite(refused))
                 or not -1 <= refused[0] < n_nodes or not -1 <= refused[1] < n_nodes):
             raise ValueError("the loop refused for its rise refers to nodes that do not exist")
-        # (saved before a strained loop was kept: none)
-        strained = np.asarray(state.get("strained", [-1.0, -1.0, 0.0, 0.0, 0.0]), np.float64)
-        info = np.asarray(state.get("strained_info", np.zeros((3, 3))), np.float64)
+        strained = np.asarray(state["strained"], np.float64)
+        info = np.asarray(state["strained_info"], np.float64)
         if (strained.shape != (5,) or info.shape != (3, 3) or not np.all(np.isfinite(strained))
                 or not np.all(np.isfinite(info)) or not -1 <= strained[0] < n_nodes
                 or not -1 <= strained[1] < n_nodes):

@@ -55,7 +55,7 @@ class ClosureTrial:
         if steady != candidate:  # the same place of the map, from a node whose pose fits it
             z = between(compose(g.poses[candidate], z), g.poses[steady])
             candidate = steady
-            loops.reanchored += 1
+            loops.counts.reanchored += 1
         total_before = g.chi2()
         trial.copy_from(g)
         trial.rescale(trial.scale_target)  # odometry's scale fitted now, judged with the loop
@@ -80,17 +80,17 @@ class ClosureTrial:
                             return kept
                     memory.remember(memory.strained, candidate, node, z)
                     memory.strained_info[:] = info
-                loops.rejected_consistency += 1
+                loops.counts.rejected_consistency += 1
                 if absorbed and not widened:  # refused for the rise alone
                     memory.remember(memory.rise_refused, candidate, node, z)
                 return -1
-            loops.agreed += 1  # kept past the rise by agreeing with the one refused
+            loops.counts.agreed += 1  # kept past the rise by agreeing with the one refused
         memory.rise_refused[:2] = -1.0
         if self.edges_full():  # the front end took the last edges meanwhile
             return -1
         self._take_trial_poses(n, m)
         g.add_edge(candidate, node, z, info, LOOP)
-        loops.accepted += 1
+        loops.counts.accepted += 1
         return candidate
 
     def _give_up_steps(self, candidate: int, node: int, z, info):
@@ -151,8 +151,8 @@ class ClosureTrial:
         g.remove_edges(given)
         g.add_edge(int(old[0]), int(old[1]), old[2:], memory.strained_info, LOOP)
         g.add_edge(candidate, node, z, info, LOOP)
-        loops.accepted += 2
-        loops.given_up += count
+        loops.counts.accepted += 2
+        loops.counts.given_up += count
         memory.rise_refused[:2] = -1.0
         memory.strained[:2] = -1.0
         return candidate

@@ -158,19 +158,16 @@ class OdometryReadings:
         """:meth:`state`'s values."""
         self.last[:] = state["last_odometry"]
         self.have = bool(state["have_odometry"])
-        # (saved before stale readings continued a motion: none continued until a new reading)
-        self.stale_scans = int(state.get("stale_scans", 0))
-        self.reading_scans = int(state.get("reading_scans", 0))
-        step = np.asarray(state.get("reading_step", np.zeros(3)), np.float64)
+        self.stale_scans = int(state["stale_scans"])
+        self.reading_scans = int(state["reading_scans"])
+        step = np.asarray(state["reading_step"], np.float64)
         if step.shape != (3,) or not np.all(np.isfinite(step)) or min(
                 self.stale_scans, self.reading_scans) < 0:
             raise ValueError("the stale readings' motion is not one this front end keeps")
         self.reading_step[:] = step
-        # (saved before the period was kept: none known)
         for k in self._STATE:
-            default = math.nan if k in ("stamp", "arrival") else 0
-            setattr(self, k, type(getattr(self, k))(state.get(f"readings_{k}", default)))
-        rate = np.asarray(state.get("readings_rate", np.zeros(3)), np.float64)
+            setattr(self, k, type(getattr(self, k))(state[f"readings_{k}"]))
+        rate = np.asarray(state["readings_rate"], np.float64)
         if (rate.shape != (3,) or not np.all(np.isfinite(rate)) or min(
                 self.scan_intervals, self.period_scans, self.periods, self.fewest,
                 self.long_gaps) < 0 or not all(

@@ -145,11 +145,9 @@ class OdometryCalibration:
                 "pinned_base": self.pinned_base}
 
     def restore(self, state: dict) -> None:
-        # (saved before odometry's scale was fitted: the fit starts afresh)
-        if "odometry_scale" in state:
-            self.fit.restore(state["odometry_scale"])
-        part = np.asarray(state.get("odometry_part", np.zeros(2)), np.float64)
+        self.fit.restore(state["odometry_scale"])
+        part = np.asarray(state["odometry_part"], np.float64)
         if part.shape != (2,) or not np.all(np.isfinite(part)):
             raise ValueError("the keyframe's odometry part is not two finite numbers")
         self.part[:] = part
-        self.pinned_base = bool(state.get("pinned_base", False))
+        self.pinned_base = bool(state["pinned_base"])

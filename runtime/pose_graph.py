@@ -206,9 +206,8 @@ class PoseGraph:
             raise ValueError("an edge joins nodes that do not exist")
         if not all(np.all(np.isfinite(state[k])) for k in ("poses", "z", "info")):
             raise ValueError("the graph holds non-finite poses or edge measurements")
-        # (saved before odometry's scale: no edge took a part, and the scale is 1)
-        part = np.asarray(state.get("odometry_part", np.zeros((m, 2))), np.float64)
-        scale = np.asarray(state.get("scale", np.ones(2)), np.float64)
+        part = np.asarray(state["odometry_part"], np.float64)
+        scale = np.asarray(state["scale"], np.float64)
         if (part.shape != (m, 2) or scale.shape != (2,) or not np.all(np.isfinite(part))
                 or not np.all(np.isfinite(scale)) or not np.all(scale > 0)):
             raise ValueError("the graph's odometry parts are not two finite numbers per edge, "

@@ -119,13 +119,8 @@ class ScanTrajectory:
             raise ValueError(f"{k} scans exceed the trajectory capacity {self.capacity}")
         if k and (node.min() < 0 or node.max() >= n_nodes):
             raise ValueError("the trajectory refers to nodes that do not exist")
-        # (saved before odometry's pose was recorded per scan, its heading alone or nothing:
-        # none read, none smoothed)
-        if "scan_odometry" in state:
-            reading = np.asarray(state.get("scan_reading", np.zeros(k, np.int8)))
-            odometry = np.asarray(state["scan_odometry"], np.float64)
-        else:
-            reading, odometry = np.zeros(k, np.int8), np.zeros((k, 3))
+        reading = np.asarray(state["scan_reading"])
+        odometry = np.asarray(state["scan_odometry"], np.float64)
         if (reading.shape != (k,) or odometry.shape != (k, 3) or not np.all(np.isfinite(odometry))
                 or np.any((reading < NO_READING) | (reading > FIRST_READING))):
             raise ValueError("the trajectory's odometry readings are not one per scan, each "

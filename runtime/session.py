@@ -1,9 +1,11 @@
 """Sessions: a runtime's state in one file, saved atomically, read back verified.
 
-This module is a codec and knows nothing of what it stores: a *state* is a nested dict whose
-leaves are numpy arrays or JSON values (numbers, strings, lists), as every stateful component's
-``state()`` returns it and its ``restore()`` takes it back
+The codec knows nothing of what it stores: a *state* is a nested dict whose leaves are numpy
+arrays or JSON values (numbers, strings, lists), as every stateful component's ``state()``
+returns it and its ``restore()`` takes it back, reading required keys only
 (:meth:`swarmslam.runtime.fixed_rate.SlamRuntime.state`). docs/formats.md §4 has the layout.
+The session's history is here alone: a file of an older version is brought to this one by the
+chain of :data:`MIGRATIONS`, each the one place that knows what changed.
 
 Format: a NumPy ``.npz`` archive (uncompressed): one ``meta`` entry (JSON: the format, its
 version and the state's JSON leaves), one entry per array leaf named by its dotted path, and a
@@ -17,26 +19,109 @@ with :class:`SessionError` naming the file and the problem — and the ``.prev``
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import io
 import json
+import math
 import os
 import threading
 from pathlib import Path
 
 import numpy as np
 
+from swarmslam.runtime.odometry_scale import BINS as SCALE_BINS
 from swarmslam.runtime.writers import write_bytes_atomic
 
 FORMAT = "swarmslam-session"
-# 6: the swarm's stall rule (its run scalars grew); 5: the wide search's recent corrections;
-# 4: the back end's wide loop search; 3: loop edges carry their own information
-VERSION = 6
+# 7: every component's state complete, its tallies saved whole; 6: the swarm's stall rule (its
+# run scalars grew); 5: the wide search's recent corrections; 4: the back end's wide loop
+# search; 3: loop edges carry their own information. A component whose state changes raises
+# the version and adds the migration from the one before (MIGRATIONS); restore() then reads
+# required keys only.
+VERSION = 7
 ARRAY = "__array__"  # marks, in the meta, a leaf stored as an archive entry
 
 
 class SessionError(ValueError):
     """A session file that cannot be resumed."""
+
+
+def restore_counts(counts, saved: dict) -> None:
+    """A tallies dataclass (``TrackingCounts``, ``LoopCounts``, ...) set from the dict its
+    ``asdict`` saved: every field given, each a non-negative whole number."""
+    names = {f.name for f in dataclasses.fields(counts)}
+    if set(saved) != names:
+        raise ValueError(f"{type(counts).__name__} saved as {sorted(saved)}, expected "
+                         f"{sorted(names)}")
+    for name, value in saved.items():
+        if int(value) != value or value < 0:
+            raise ValueError(f"{type(counts).__name__}.{name} is {value!r}, not a count")
+        setattr(counts, name, int(value))
+
+
+def _from_6(state: dict) -> dict:
+    """Version 6 → 7. Fields a version-6 session may lack, from sessions saved before their
+    rule, take the value that rule started from; the tallies move into their dataclasses."""
+    slam = state["slam"]
+    fe, be, graph = slam["front_end"], slam["back_end"], slam["graph"]
+    k, m = len(fe["scan_node"]), len(graph["ij"])
+    if "scan_odometry" not in fe:  # odometry's pose not yet recorded per scan: none read
+        fe.pop("scan_odometry_heading", None)
+        fe["scan_reading"], fe["scan_odometry"] = np.zeros(k, np.int8), np.zeros((k, 3))
+    fe.setdefault("scan_reading", np.zeros(k, np.int8))
+    fe.setdefault("odometry_rel", np.asarray(fe["rel"], np.float64).copy())
+    fe.setdefault("odometry_scale", np.zeros(SCALE_BINS))  # the fit starts afresh
+    fe.setdefault("odometry_part", np.zeros(2))
+    fe.setdefault("pinned_base", False)
+    # before the sweep was undistorted: the trajectory's last stamp, no motion's interval
+    fe.setdefault("last_stamp", float(fe["scan_stamp"][-1]) if k else math.nan)
+    fe.setdefault("last_interval", math.nan)
+    fe.setdefault("submap_nodes", np.zeros(0, np.int64))  # placed by the graph
+    fe.setdefault("submap_poses", np.zeros((0, 3)))
+    fe.setdefault("previous_points", np.zeros((0, 2)))
+    for key, value in (("stale_scans", 0), ("reading_scans", 0), ("reading_step", np.zeros(3)),
+                       ("readings_rate", np.zeros(3))):
+        fe.setdefault(key, value)
+    for key in ("stamp", "arrival", "scan_time", "scan_intervals", "period_time", "period_scans",
+                "periods", "fewest", "long_gaps", "lag"):  # the period not yet kept: none known
+        fe.setdefault(f"readings_{key}", math.nan if key in ("stamp", "arrival") else 0)
+    counts = {"lost_matches": fe.pop("lost_matches"),
+              "degenerate_matches": fe.pop("degenerate_matches")}
+    fe["counts"] = {"overruled_odometry": 0, "rescued_matches": 0, "sought_matches": 0,
+                    "disowned_matches": 0, "held_to_odometry": 0, **counts}
+    attempts, accepted, rejected_match, rejected_consistency = be["loops"]
+    be["loops"] = {"attempts": attempts, "accepted": accepted,
+                   "rejected_match": rejected_match,
+                   "rejected_consistency": rejected_consistency,
+                   **{key: be.pop(key, 0) for key in ("agreed", "given_up", "reanchored")}}
+    be["counts"] = {key: be.pop(key) for key in ("enqueued", "searched", "dropped", "deferred",
+                                                 "forced")}
+    for key, value in (("failed", np.zeros(0, np.int64)), ("failed_node", -1),
+                       ("failed_revision", -1), ("wide_from", 0),
+                       ("rise_refused", np.array([-1.0, -1.0, 0.0, 0.0, 0.0])),
+                       ("strained", np.array([-1.0, -1.0, 0.0, 0.0, 0.0])),
+                       ("strained_info", np.zeros((3, 3)))):
+        be.setdefault(key, value)
+    # before odometry's scale: no edge took a part, and the scale is 1
+    graph.setdefault("odometry_part", np.zeros((m, 2)))
+    graph.setdefault("scale", np.ones(2))
+    for key in ("bad_stamps", "odometry_non_finite", "odometry_jumps", "odometry_out_of_range",
+                "cut"):
+        state["inbox"].setdefault(key, 0)
+    return state
+
+
+MIGRATIONS = {6: _from_6}  # version → the function that brings its state to the next
+
+
+def migrate(state: dict, version: int) -> dict:
+    """A runtime's state saved at ``version``, brought to :data:`VERSION` through the chain of
+    :data:`MIGRATIONS`; KeyError names a field the saved version should have held."""
+    while version < VERSION:
+        state = MIGRATIONS[version](state)
+        version += 1
+    return state
 
 
 def encode(state: dict) -> tuple[dict, dict]:
@@ -134,13 +219,15 @@ def read_session(path) -> dict:
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         got = meta.get("format") if isinstance(meta, dict) else None
         raise refuse(f"format is {got!r}, expected {FORMAT!r}")
-    if meta.get("version") != VERSION:
-        raise refuse(f"session version {meta.get('version')} is not supported (this build "
-                     f"reads version {VERSION})")
+    version = meta.get("version")
+    if version != VERSION and version not in MIGRATIONS:
+        readable = ", ".join(str(v) for v in (*sorted(MIGRATIONS), VERSION))
+        raise refuse(f"session version {version} is not supported (this build reads versions "
+                     f"{readable})")
     if _checksum(meta_bytes, data) != stored:
         raise refuse("checksum mismatch: the file is corrupt")
     try:
-        return decode(meta["state"], data)
+        return migrate(decode(meta["state"], data), version)
     except KeyError as exc:
         raise refuse(f"missing entry {exc.args[0]!r}") from None
 

@@ -15,6 +15,8 @@ start-up.
 
 from __future__ import annotations
 
+from dataclasses import asdict
+
 import numpy as np
 
 from swarmslam.runtime.back_end import SLICE_NAMES, BackEnd
@@ -125,14 +127,14 @@ class GraphSlam:
 
     @property
     def loops_closed(self) -> int:
-        return self.back_end.loops.accepted
+        return self.back_end.loops.counts.accepted
 
     @property
     def status(self) -> str:
         parts = (self.front_end.status, self.back_end.status,
                  "ok" if self.locator is None else self.locator.status)
         said = [s for s in parts if s != "ok"]
-        dropped = self.back_end.dropped
+        dropped = self.back_end.counts.dropped
         if dropped:
             said.append(f"loop queue full: {dropped} loop searches dropped "
                         f"(raise runtime.loop_queue or runtime.tick_budget)")
@@ -149,18 +151,22 @@ class GraphSlam:
         return self.back_end.work(clock, None)
 
     def report(self) -> dict:
-        """The graph, its loop search and the back end's slicing, for a run's report."""
+        """The graph, the front end's and the loop search's tallies and the back end's
+        slicing, for a run's report."""
         b, g = self.back_end, self.graph
+        q = b.counts
         return {
             "nodes": int(g.n_nodes),
             "edges": int(g.n_edges),
             "loops_accepted": self.loops_closed,
-            "loop_searches": {"enqueued": b.enqueued, "done": b.searched, "pending": b.size
-                              + (b.node >= 0), "dropped": b.dropped},
+            "tracking": asdict(self.front_end.counts),
+            "loops": asdict(b.loops.counts),
+            "loop_searches": {"enqueued": q.enqueued, "done": q.searched, "pending": b.size
+                              + (b.node >= 0), "dropped": q.dropped},
             "back_end_slices": {name: int(v) for name, v in zip(SLICE_NAMES, b.slices)},
             "wide_searches": b.wide.counts(),
-            "deferred_ticks": b.deferred,
-            "forced_slices": b.forced,
+            "deferred_ticks": q.deferred,
+            "forced_slices": q.forced,
         }
 
     def draw_map(self, grid: OccupancyGrid, max_range: float | None = None) -> OccupancyGrid:

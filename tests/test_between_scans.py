@@ -1,6 +1,8 @@
 """The scans between nodes smoothed with odometry's motion (swarmslam.runtime.between_scans,
 docs/method.md §6.2 "Between-scan poses")."""
 
+import copy
+
 import numpy as np
 import pytest
 
@@ -10,9 +12,11 @@ from swarmslam.runtime.between_scans import (FIRST_READING, NEW_READING, NO_READ
 from swarmslam.runtime.config import SlamConfig, override
 from swarmslam.runtime.pose import between, compose, wrap_angle
 from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.session import migrate
 from swarmslam.runtime.slam import GraphSlam
 from swarmslam.runtime.warm_up import loop_path, room_world, scan_at
 
+from old_sessions import as_version_6
 from test_slam import ANGLES, run
 
 
@@ -134,20 +138,21 @@ def test_the_front_end_records_what_odometry_read_at_each_scan():
         FIRST_READING, NEW_READING, STALE_READING, NO_READING, FIRST_READING, NEW_READING]
     assert np.allclose(fe.scans.odometry[[0, 1, 4, 5]], path[[0, 1, 4, 5]])
     # a session keeps them; one saved before odometry's pose was kept (its heading alone, or
-    # nothing) restores with none read
+    # nothing) is migrated with none read
     state = slam.state()
     again = GraphSlam(SlamConfig(), seed=0)
     again.restore(state)
     assert np.array_equal(again.front_end.scans.reading[:6], fe.scans.reading[:6])
     assert np.array_equal(again.front_end.scans.odometry[:6], fe.scans.odometry[:6])
-    saved = state["front_end"].pop("scan_odometry")
-    state["front_end"]["scan_odometry_heading"] = saved[:, 2]
+    v6 = as_version_6({"slam": state, "inbox": {}})
+    saved = v6["slam"]["front_end"].pop("scan_odometry")
+    v6["slam"]["front_end"]["scan_odometry_heading"] = saved[:, 2]
     old = GraphSlam(SlamConfig(), seed=0)
-    old.restore(state)
+    old.restore(migrate(copy.deepcopy(v6), 6)["slam"])
     assert not old.front_end.scans.reading[:6].any()
-    del state["front_end"]["scan_reading"], state["front_end"]["scan_odometry_heading"]
+    del v6["slam"]["front_end"]["scan_reading"], v6["slam"]["front_end"]["scan_odometry_heading"]
     older = GraphSlam(SlamConfig(), seed=0)
-    older.restore(state)
+    older.restore(migrate(v6, 6)["slam"])
     assert not older.front_end.scans.reading[:6].any()
     state["front_end"]["scan_odometry"] = saved
     state["front_end"]["scan_reading"] = np.full(6, 7, np.int8)

@@ -29,10 +29,12 @@ from swarmslam.runtime.inbox import ScanInbox
 from swarmslam.runtime.pose import between, compose
 from swarmslam.runtime.pose_graph import LOOP
 from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime import session
 from swarmslam.runtime.session import SessionError, read_session, write_session
 from swarmslam.runtime.slam import GraphSlam
 from swarmslam.runtime.warm_up import LoopDrive
 
+from old_sessions import as_early_version_6, as_version_6
 from source_layout import copy_installed_layout
 
 # A small swarm budget keeps the long runs quick; the code paths are the same at any budget.
@@ -136,7 +138,7 @@ def test_slow_matcher_defers_back_end_work_which_completes_later():
 
     runtime.slam.front_end.matcher.align_into = slow_align
     feed(runtime, angles, records[:120])
-    searched_before = runtime.slam.back_end.searched
+    searched_before = runtime.slam.back_end.counts.searched
     slow["on"] = True
     feed(runtime, angles, records[120:160], first=120)
     during = runtime.report()
@@ -150,7 +152,7 @@ def test_slow_matcher_defers_back_end_work_which_completes_later():
     assert during["deadline_misses"] >= 40  # every slow tick missed its deadline, counted
     assert during["deferred_ticks"] > 0  # ... and the back end waited for time
     assert during["evaluation_share"] == pytest.approx(0.25)  # the swarm was cut to its floor
-    assert runtime.slam.back_end.searched > searched_before
+    assert runtime.slam.back_end.counts.searched > searched_before
     assert report["loop_searches"]["pending"] == 0  # nothing left behind ...
     assert report["loop_searches"]["done"] == report["loop_searches"]["enqueued"]  # ... or lost
     assert report["loop_searches"]["dropped"] == 0
@@ -190,7 +192,7 @@ def test_a_full_loop_queue_drops_the_oldest_search_and_says_so():
     runtime = SlamRuntime(with_runtime(QUICK, loop_queue=2, tick_budget=0.0005,
                                                max_deferred_ticks=1000))
     feed(runtime, angles, records)
-    assert runtime.slam.back_end.dropped > 0
+    assert runtime.slam.back_end.counts.dropped > 0
     assert "loop queue full" in runtime.status
 
 
@@ -344,6 +346,73 @@ def test_a_session_keeps_the_scan_the_next_match_is_checked_against(saved, tmp_p
     write_session(bad, state)
     with pytest.raises(SessionError, match="previous scan"):
         SlamRuntime.resume(bad)
+
+
+def _counted(runtime) -> dict:
+    """Every tally a run's report holds (none of its timings)."""
+    r = runtime.report()
+    keys = ("tracking", "loops", "loop_searches", "back_end_slices", "wide_searches",
+            "deferred_ticks", "forced_slices", "stale_scans", "empty_scans", "cut_scans")
+    return {k: r[k] for k in keys}
+
+
+def test_a_resumed_run_keeps_every_count(saved, tmp_path):
+    """Every tally is saved whole: after --resume the report counts on from where the saved
+    run stood, the front end's five rule counts as well (they once reset to zero)."""
+    runtime, _ = saved
+    slam = runtime.slam
+    for k, counts in enumerate((slam.front_end.counts, slam.back_end.loops.counts,
+                                slam.back_end.counts)):
+        for j, name in enumerate(vars(counts)):
+            setattr(counts, name, 100 * (k + 1) + j + 1)  # each a value of its own
+    path = tmp_path / "counted.session"
+    runtime.save(path)
+    resumed = SlamRuntime.resume(path)
+    assert _counted(resumed) == _counted(runtime)
+    assert resumed.report()["tracking"]["held_to_odometry"] == 107
+    state = runtime.state()
+    state["slam"]["front_end"]["counts"]["sought_matches"] = -1
+    bad = tmp_path / "negative.session"
+    write_session(bad, state)
+    with pytest.raises(SessionError, match="sought_matches"):
+        SlamRuntime.resume(bad)
+    state["slam"]["front_end"]["counts"]["sought_matches"] = 3
+    del state["slam"]["back_end"]["counts"]["dropped"]
+    write_session(bad, state)
+    with pytest.raises(SessionError, match="SearchCounts"):
+        SlamRuntime.resume(bad)
+
+
+def test_a_version_6_session_resumes_through_its_migration(saved, tmp_path, monkeypatch):
+    """A session an older build wrote (version 6: its tallies flat, five front-end counts not
+    kept) is read through the migration: the same map and trajectory, the counts it kept, the
+    others from zero. A version with no migration is refused by number."""
+    runtime, _ = saved
+    old = as_version_6(runtime.state())
+    path = tmp_path / "v6.session"
+    monkeypatch.setattr(session, "VERSION", 6)
+    write_session(path, old)
+    monkeypatch.undo()
+    resumed = SlamRuntime.resume(path)
+    assert np.array_equal(resumed.slam.node_poses(), runtime.slam.node_poses())
+    assert np.array_equal(resumed.trajectory()[1], runtime.trajectory()[1])
+    counts = resumed.slam.front_end.counts
+    assert counts.lost_matches == runtime.slam.front_end.counts.lost_matches
+    assert counts.sought_matches == counts.disowned_matches == 0
+    assert vars(resumed.slam.back_end.loops.counts) == vars(runtime.slam.back_end.loops.counts)
+    early = tmp_path / "early-v6.session"  # before every rule whose state came later
+    monkeypatch.setattr(session, "VERSION", 6)
+    write_session(early, as_early_version_6(runtime.state()))
+    monkeypatch.undo()
+    resumed = SlamRuntime.resume(early)
+    assert np.array_equal(resumed.slam.node_poses(), runtime.slam.node_poses())
+    assert resumed.slam.front_end.readings.period() == 0 and resumed.inbox.cut == 0
+    assert resumed.slam.graph.scale == 1.0
+    monkeypatch.setattr(session, "VERSION", 5)
+    write_session(path, old)
+    monkeypatch.undo()
+    with pytest.raises(SessionError, match="version 5 is not supported"):
+        SlamRuntime.resume(path)
 
 
 def test_each_save_keeps_the_previous_good_session(saved, tmp_path):
@@ -700,11 +769,11 @@ def test_a_closure_refused_after_its_slices_leaves_the_graph_as_the_front_end_le
     next(steps)
     add_node_as_front_end(g, np.array([0.3, 0.0, 0.0]))
     edges, before = g.n_edges, g.poses[: g.n_nodes].copy()
-    rejected = back.loops.rejected_consistency
+    rejected = back.loops.counts.rejected_consistency
     with pytest.raises(StopIteration) as stop:
         while True:
             next(steps)
-    assert stop.value.value == -1 and back.loops.rejected_consistency == rejected + 1
+    assert stop.value.value == -1 and back.loops.counts.rejected_consistency == rejected + 1
     assert g.n_edges == edges and np.array_equal(g.poses[: g.n_nodes], before)
 
 

@@ -90,7 +90,7 @@ def test_false_loop_candidate_is_rejected_and_graph_restored():
     assert victim in slam.back_end.loops.candidates(g, slam.nodes.cov, node)
     assert slam.back_end.seek_loop_closure(node) is False
     assert g.n_edges == edges and np.array_equal(g.poses[: g.n_nodes], poses)
-    assert slam.back_end.loops.rejected_match + slam.back_end.loops.rejected_consistency >= 1
+    assert slam.back_end.loops.counts.rejected_match + slam.back_end.loops.counts.rejected_consistency >= 1
 
 
 def test_capacity_reached_keeps_localising():
@@ -538,10 +538,10 @@ def test_a_loop_refused_for_the_drift_it_repairs_is_kept_when_the_next_agrees(mo
     refused as the first was (docs/method.md §5, step 4)."""
     slam, back, z = _drifted_chain(SlamConfig())
     loops, n = back.loops, slam.graph.n_nodes
-    assert not back.close_loop(0, n - 2, z) and loops.rejected_consistency == 1
+    assert not back.close_loop(0, n - 2, z) and loops.counts.rejected_consistency == 1
     assert back.closure.memory.rise_refused[1] == n - 2
     assert back.close_loop(1, n - 1, z + [moved, 0.0, 0.0]) is kept
-    assert loops.agreed == int(kept) and loops.rejected_consistency == 2 - int(kept)
+    assert loops.counts.agreed == int(kept) and loops.counts.rejected_consistency == 2 - int(kept)
     if kept:  # the drift repaired: the far end, 1.48 m long, pulled back near the truth
         assert abs(slam.graph.poses[n - 1, 0] - (n - 1) * 0.5) < 0.15
     slam, back, z = _drifted_chain(override(SlamConfig(), {"loop_closure.agreement_nodes": 0}))
@@ -575,7 +575,7 @@ def test_a_loop_to_a_node_scanned_in_a_fast_turn_is_given_to_a_steady_neighbour(
     edge = g.n_edges - 1
     assert tuple(g.ij[edge]) == (given_to, 29) and g.kind[edge] == LOOP
     np.testing.assert_allclose(compose(before[given_to], g.z[edge]), there, atol=1e-12)
-    assert back.loops.reanchored == int(given_to != 5)
+    assert back.loops.counts.reanchored == int(given_to != 5)
 
 
 def _chain_with_wrong_loops(config, n=60, step=0.5, turn=0.003):
@@ -610,17 +610,17 @@ def test_two_loops_that_agree_give_up_the_kept_loops_they_contradict(given_up):
     bent, edges = abs(g.poses[55, 1]), g.n_edges
     assert bent > 2.0  # the drift the wrong loops hold
     assert not back.close_loop(4, 55, z)  # right, refused: the graph cannot absorb it
-    assert back.closure.memory.strained[1] == 55 and loops.rejected_consistency == 1
+    assert back.closure.memory.strained[1] == 55 and loops.counts.rejected_consistency == 1
     kept = back.close_loop(5, 56, z)  # the next agrees
-    assert kept is (given_up > 0) and loops.agreed == 0
+    assert kept is (given_up > 0) and loops.counts.agreed == 0
     wrong = {(0, 50), (1, 51), (2, 52)}
     held = {tuple(int(v) for v in g.ij[k]) for k in range(g.n_edges) if g.kind[k] == LOOP}
     if kept:
-        assert loops.given_up == 3 and held == {(4, 55), (5, 56)}
+        assert loops.counts.given_up == 3 and held == {(4, 55), (5, 56)}
         assert g.n_edges == edges - 3 + 2 and abs(g.poses[55, 1]) < 0.25 * bent
         restored = GraphSlam(config, seed=0)
         restored.restore(slam.state())
-        assert restored.back_end.loops.given_up == 3 and restored.graph.n_edges == g.n_edges
+        assert restored.back_end.loops.counts.given_up == 3 and restored.graph.n_edges == g.n_edges
     else:
         assert held == wrong and g.n_edges == edges and abs(g.poses[55, 1]) == bent
 

@@ -248,7 +248,7 @@ def run_case(case: Case, work: Path, config: SlamConfig | None = None, floor: bo
         row = {"eT": m["eT"], "eR_deg": m["eR_deg"],
                "ate_rmse_m": rigid_ate(est, truth_of(stamps, truth, est_stamps)),
                **scores, "real_time_factor": m["real_time_factor"],
-               "matches_recovered": m["matches_recovered"]}
+               "matches_recovered": m["runtime"]["tracking"]["lost_matches"]}
         result.update({f"{label}{k}": v for k, v in row.items()})
     if floor:
         result["eT_over_floor"] = result["eT"] / max(result["floor_eT"], 1e-9)

@@ -1,0 +1,50 @@
+"""Sessions as an older build saved them, made from a current state: what the migrations in
+:mod:`swarmslam.runtime.session` must bring back."""
+
+from __future__ import annotations
+
+import copy
+
+
+def as_version_6(state: dict) -> dict:
+    """A runtime's state (``SlamRuntime.state()``) as version 6 laid it out: the tallies flat,
+    the five front-end counts it did not keep gone."""
+    old = copy.deepcopy(state)
+    fe, be = old["slam"]["front_end"], old["slam"]["back_end"]
+    counts = fe.pop("counts")
+    fe["lost_matches"], fe["degenerate_matches"] = (counts["lost_matches"],
+                                                    counts["degenerate_matches"])
+    loops = be.pop("loops")
+    be["loops"] = [loops["attempts"], loops["accepted"], loops["rejected_match"],
+                   loops["rejected_consistency"]]
+    for key in ("agreed", "given_up", "reanchored"):
+        be[key] = loops[key]
+    be.update(be.pop("counts"))
+    return old
+
+
+# What a version-6 session saved before a rule lacks; the migration supplies each.
+BEFORE_THEIR_RULES = {
+    "front_end": ("scan_odometry", "scan_reading", "odometry_rel", "odometry_scale",
+                  "odometry_part", "pinned_base", "last_stamp", "last_interval", "submap_nodes",
+                  "submap_poses", "previous_points", "stale_scans", "reading_scans",
+                  "reading_step", "readings_rate", "readings_stamp", "readings_arrival",
+                  "readings_scan_time", "readings_scan_intervals", "readings_period_time",
+                  "readings_period_scans", "readings_periods", "readings_fewest",
+                  "readings_long_gaps", "readings_lag"),
+    "back_end": ("failed", "failed_node", "failed_revision", "wide_from", "rise_refused",
+                 "strained", "strained_info", "agreed", "given_up", "reanchored"),
+    "graph": ("odometry_part", "scale"),
+}
+
+
+def as_early_version_6(state: dict) -> dict:
+    """:func:`as_version_6`, saved before any rule whose state a later build added."""
+    old = as_version_6(state)
+    for part, keys in BEFORE_THEIR_RULES.items():
+        for key in keys:
+            del old["slam"][part][key]
+    for key in ("bad_stamps", "odometry_non_finite", "odometry_jumps", "odometry_out_of_range",
+                "cut"):
+        del old["inbox"][key]
+    return old
