@@ -5,8 +5,8 @@ its own, returned to the system when freed, and returns the heap's free top once
 *trim threshold*. Both thresholds move: freeing a mapped block raises the mmap threshold to
 that block's size and the trim threshold to twice it (up to 32 MiB and 64 MiB on 64-bit
 systems). A process that frees one large block at start-up — a log read, a grid built — then
-keeps on its heap every block below that size it frees later: on Intel the runtime's resident
-size rose 5–7 MiB in steps after its warm-up, with no byte of traced growth and no new kernel
+keeps on its heap every block below that size it frees later: the runtime's resident size
+rose several MiB in steps after its warm-up, with no byte of traced growth and no new kernel
 (docs/runtime.md §4). Setting either threshold by ``mallopt`` turns the adjustment off; this
 sets both, to the starting values, at start-up.
 

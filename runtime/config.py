@@ -166,8 +166,7 @@ class SwarmConfig(Section):
         (off) for the firefly swarm. Its brightest member only walks at random (Eq. 12), so
         its best gains when another overtakes it, after runs without a gain that the rule
         takes for a settled swarm: with the rule, the matcher benchmark's matches with no
-        guess failed 9.4% / 9.8% of Intel's / ACES3's pairs against 3.4% / 1.6% without
-        (docs/experiments/2026-11-28-fr-clinic-reference.md)."""
+        guess failed several times as often as without."""
         return 0 if self.optimizer == "fa" else self.stall_iterations
 
 
@@ -275,8 +274,8 @@ class InputConfig(Section):
     max_speed: float = _setting(5.0, "m/s: odometry moving faster between two readings jumped",
                                 gt=0)
     max_turn_rate: float = _setting(6.0, "rad/s: odometry turning faster jumped", gt=0)
-    # The slacks cover logs whose stamps were reordered: Intel's put two readings 0.87 m, or
-    # 0.92 rad, apart within 13 ms (12 times); a garbage line is metres or kilometres off.
+    # The slacks cover logs whose stamps were reordered (two readings metres or a radian
+    # apart within milliseconds); a garbage line is metres or kilometres off.
     jump_slack: float = _setting(1.0, "m allowed on top of max_speed × the time between "
                                  "readings (reordered stamps, readings at one instant)", ge=0)
     turn_slack: float = _setting(1.0, "rad allowed on top of max_turn_rate × the time", ge=0)
@@ -390,8 +389,8 @@ class FrontEndConfig(Section):
     period_restart_gaps: int = _setting(
         3, "this many gaps in a row between new odometry readings, each longer than twice the "
         "fewest scans one took, start the period's count again: the fewest was a stray (a "
-        "reading one scan after another where scans were refused now and then); 2 held "
-        "Intel's odometry, read with every scan, periodic for 9 scans", ge=1, le=1000)
+        "reading one scan after another where scans were refused now and then)", ge=1,
+        le=1000)
     window_margin: float = _setting(
         0.05, "a match within this share of its search box's edge found no optimum inside the "
         "box: tracking is lost", ge=0, lt=1)
@@ -831,7 +830,7 @@ SIMULATED_LIDARS = {"rplidar-a1": (360, 0.15, 12.0), "rplidar-a2": (720, 0.15, 1
 # A reference grid of 1,024 cells (51 m at 5 cm) holds every submap of a scanner reaching
 # REACH_1024 m: its reach both ways and the few metres its submaps' nodes lie apart. A
 # farther reach gets the default 2,048 (102 m: a SICK's returns to 51 m each way, which is
-# what pins the heading in an open hall; docs/experiments/2026-11-28-far-returns.md).
+# what pins the heading in an open hall).
 REACH_1024 = 20.0
 
 
@@ -861,8 +860,8 @@ def simulated(lidar: str = "rplidar-a1", beams: int | None = None, min_range: fl
     (``predict_first``), and no loop search for the 2 nodes after a closure
     (``closure_spacing``): random driving revisits a place at almost every node. Each was
     measured in the office explorations of ``swarmslam demo --seed N`` (pose error and steps
-    per second; docs/experiments/2026-11-25-readme-notebook.md); the current figures are the
-    demo's own output and ``bench env``'s (docs/results.md)."""
+    per second); the current figures are the demo's own output and ``bench env``'s
+    (docs/results.md)."""
     b, lo, hi = SIMULATED_LIDARS.get(lidar, SIMULATED_LIDARS["rplidar-a1"])
     reach = hi if max_range is None else max_range
     return override(SlamConfig(), {
@@ -875,7 +874,7 @@ def simulated(lidar: str = "rplidar-a1", beams: int | None = None, min_range: fl
 
 
 PRESETS = {
-    "sick-lms200": SlamConfig,  # 180° SICK-class scanners: Intel, ACES3, fr-clinic (the default)
+    "sick-lms200": SlamConfig,  # 180° SICK-class scanners, as on the public logs (the default)
     **{f"rplidar-{m}": (lambda m=m: _rplidar(m)) for m in RPLIDAR_MODELS},
     **{f"sim-{name}": (lambda name=name: simulated(name)) for name in SIMULATED_LIDARS},
 }
@@ -898,8 +897,8 @@ def to_dict(config) -> dict:
     return dataclasses.asdict(config)
 
 
-# Fields this version no longer has (docs/experiments/2026-11-25-fewer-knobs.md; commit
-# 449cba7 is the last with them) → the value that left their path off. A session or file
+# Fields this version no longer has (docs/configuration.md; commit 449cba7 is the last with
+# them) → the value that left their path off. A session or file
 # that names one with that value reads as before; with another, it needs the older version.
 REMOVED_FIELDS = {
     "front_end.odometry_noise_window": 0, "front_end.odometry_noise_min_steps": None,
@@ -922,7 +921,7 @@ def _without_removed(data: dict, where: str) -> dict:
         elif REMOVED_FIELDS[path] is not None and (NONE if value is None else value) \
                 != REMOVED_FIELDS[path]:
             raise ConfigError(f"{path} = {value!r}: this opt-in was removed in this version "
-                              f"(docs/experiments/2026-11-25-fewer-knobs.md); remove the key, "
+                              f"(docs/configuration.md); remove the key, "
                               f"or use commit 449cba7")
     return kept
 

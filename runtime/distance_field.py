@@ -9,7 +9,7 @@ Nearest neighbours are taken on the reference *surface*: consecutive end points 
 ``max_gap`` are joined by a segment (as PLICP does), and a point's distance is to the nearest
 segment or isolated point. With bare points, a robot standing still in a corridor is where every
 beam lands exactly on last scan's beam, so the objective prefers "no motion" whatever the true
-motion along the corridor was: half the ACES keyframe failures were that.
+motion along the corridor was.
 
 Far down a corridor the same holds for neighbours farther apart than ``max_gap``: a wall seen
 grazing has its end points metres apart, and as bare points they pull every match towards "no
@@ -134,7 +134,7 @@ def build_distance_field(pts, n, res, radius, max_gap, inv_c2, field, meta, colu
     ``spans`` (an integer pair for each band of ``SPAN_ROWS`` rows of ``field``) for the
     columns each band's segments reached: only those take the kernel, the rest of a row is
     one constant (a wide window is mostly far from every surface; the kernel's pass over all
-    of it cost more than the segments' own, docs/experiments/2026-11-28-far-returns.md).
+    of it cost more than the segments' own).
     """
     fit_window(pts, n, res, radius, field.shape[1], field.shape[0], meta)
     r2 = radius * radius
@@ -209,11 +209,10 @@ def splat_segment(ax, ay, bx, by, ox, oy, res, radius, nx, ny, field, columns):
     conditional store would keep it scalar: 1.7× the time), and the point case (a = b) needs
     no projection. The select is ``np.fmin``: written ``d2 if d2 < f else f``, LLVM turned it
     into a masked store of the lowered lanes (``vmaskmovps``), which AMD's Zen 3 runs in
-    microcode: a build took 1.4 times as long (docs/experiments/2026-11-28-masked-store.md).
+    microcode: a build took 1.4 times as long.
     ``fmin`` stores every lane, the same value (the operands are finite). A node's x is read
     from ``columns``, not computed from its index: on a CPU without AVX-512 (Zen 3) the
-    index's conversion to a double runs lane by lane, a third of a build
-    (docs/experiments/2026-11-27-field-speed.md). The arithmetic is the same, operation for
+    index's conversion to a double runs lane by lane, a third of a build. The arithmetic is the same, operation for
     operation, so the field is too. Returns the box of nodes walked (:func:`segment_box`)."""
     ux = bx - ax
     uy = by - ay

@@ -273,7 +273,7 @@ class SlamRuntime:
     def collector_held(self):
         """While a committing runtime ticks (:meth:`run`), what was alive before is kept out of
         the garbage collector's full passes, which otherwise walk every module and dispatcher
-        (one stalled a tick 62–68 ms on Intel); it is handed back at the end (docs/runtime.md
+        (one stalls a tick by tens of ms); it is handed back at the end (docs/runtime.md
         §4). A runtime that commits nothing, or a hold already in place, leaves it alone."""
         frozen = self.committed and gc.get_freeze_count() == 0
         if frozen:

@@ -4,13 +4,13 @@
   edges was 40× slower), scattered into a CSC pattern that is worked out once per edge set.
 * Solve: sparse LDLᵀ (:mod:`swarmslam.runtime.sparse_ldl`: minimum-degree ordering of the nodes, QDLDL's
   factorisation, compiled, in buffers of fixed capacity; scipy has no sparse Cholesky, and
-  SuperLU took 88 ms per iteration on M3500 against 5 ms). The ordering and symbolic analysis
+  SuperLU took over ten times as long per iteration on the benchmark graphs). The ordering and symbolic analysis
   are redone only when the edge set changes; iterations refactor numerically.
 * The first pose is fixed by leaving it out of the unknowns. Perturbations are additive on
   ``(x, y, θ)``, as in g2o's ``VertexSE2``, so the χ² reached is g2o's.
-* Plain Gauss–Newton, as g2o iterates it: a step that raises χ² is kept (from INTEL's odometry
-  start χ² rises 30× before falling to 215.83 in five steps; rejecting such steps stalls far
-  from the optimum). Only if it has not converged after ``max_iterations`` (or χ² is no longer
+* Plain Gauss–Newton, as g2o iterates it: a step that raises χ² is kept (from an odometry
+  start χ² may rise many times over before it falls; rejecting such steps stalls far from the
+  optimum). Only if it has not converged after ``max_iterations`` (or χ² is no longer
   finite) does it restart from the initial poses with Levenberg–Marquardt damping (Nielsen's
   rule, ``(H + μI) Δx = −b``, as g2o's ``lm`` solver).
 """
@@ -162,7 +162,7 @@ def csc_pattern(rows, cols, size, cursor, sort_rows, sort_idx, slot, indices, in
     The triplets come as 3×3 blocks (nine in a row, :func:`assemble`'s layout, permuted block
     by block), so the pattern is found on blocks — a counting sort by block column, then block
     rows sorted and merged within each — and written out three columns at a time: a ninth of
-    the entries to sort (INTEL's final graph: 0.14 ms against 0.61 entry by entry), and the
+    the entries to sort (a quarter of the time of entry by entry), and the
     same pattern and slots as sorting every entry would give."""
     nb = size // 3
     groups = rows.shape[0] // 9
@@ -334,8 +334,8 @@ class GaussNewton:
         ``exempt`` keeps its full weight under the robust kernel (a loop closure on trial).
         If it has not converged after ``max_iterations``, Levenberg–Marquardt restarts from
         the first poses — or, without ``fallback``, the poses are restored and the report says
-        ``converged=False`` (a closure on trial: Intel's one LM restart on trial took 264
-        iterations, 142 ms, for a closure that was then refused)."""
+        ``converged=False`` (a closure on trial: an LM restart there takes hundreds of
+        iterations, for a closure that is then refused)."""
         t0 = time.perf_counter()
         steps = self.steps(exempt)
         try:
@@ -356,8 +356,8 @@ class GaussNewton:
         closure on trial is optimised a step per back-end slice this way, so that one large
         graph's solve does not overrun a tick (docs/runtime.md §3).
         The robust weights are set once, at the poses the call starts from: re-weighting at
-        every step kept χ² from settling (Intel: 7 of 858 optimisations fell back to
-        Levenberg–Marquardt, up to 95 ms, where plain least squares never took over 20 ms)."""
+        every step kept χ² from settling (optimisations fell back to Levenberg–Marquardt, several
+        times as slow, where plain least squares settled)."""
         g = self.graph
         m = g.n_edges
         phi = self.config.robust_loops

@@ -17,8 +17,8 @@ the consistency test that replaces the literal "error did not grow" rule.
    learnt on). Add the edge, re-optimise, and keep it only if its own
    error ``eᵀΩe`` stays under the χ²₃ gate (7.81) and the total error rose by no more than a
    consistent 3-dof constraint raises it (χ²₃ at 99.9%: 16.3); otherwise remove the edge and
-   restore the poses. (On the first 6,000 Intel scans accepted loops raised χ² by 0.03 at the
-   median and 8.6 at the 99th percentile; the one wrong closure that bent the map, by 25.9.)
+   restore the poses. (Accepted loops raise χ² by a few hundredths at the median and a few
+   units at the 99th percentile; a wrong closure that bends the map, by more than the gate.)
 """
 
 from __future__ import annotations

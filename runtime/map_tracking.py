@@ -226,13 +226,12 @@ class MapTracker:
     def _gated(self, pose, guess, step):
         """The match, or odometry's prediction if the match places the scan farther from it
         than odometry errs (the front end's odometry gate, docs/method.md §9): a match that
-        fits can still slide, along a corridor or onto a wall drawn twice (Intel, scan 11,449:
-        0.73 m from a pose 1 mm off). Position only: on a fast turn odometry's heading can be a
-        scan out of step (ACES3, scan 3,719: 14°), and walls pin a match's heading. What the
+        fits can still slide, along a corridor or onto a wall drawn twice (most of a metre from a
+        pose a millimetre off). Position only: on a fast turn odometry's heading can be a scan
+        out of step, and walls pin a match's heading. What the
         gate allows grows with odometry's motion since the last match kept, and at most
         ``max_held_scans`` matches in a row are refused: after a creep of small steps the
-        match that brings the pose back is a large correction too (Intel, scan 12,236: with
-        no limit, held 0.37 m off for more than ten scans)."""
+        match that brings the pose back is a large correction too."""
         self.unfixed[0] += math.hypot(step[0], step[1])
         self.held = (self.n_held < self.config.localization.max_held_scans
                      and contradicts_odometry(pose, guess, self.unfixed, self.config.front_end,

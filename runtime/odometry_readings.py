@@ -96,8 +96,8 @@ class OdometryReadings:
         if gap > 0:
             # Readings the same at rest are not new, so a gap may span several periods: only
             # gaps of at most twice the fewest scans count, and one of fewer than half of
-            # them starts the count again (those before held a rest: MIT-CSAIL's first gap
-            # is 33 scans, then its odometry comes with every scan). At most, not fewer: a
+            # them starts the count again (those before held a rest: a log's first gap may be
+            # tens of scans, then its odometry comes with every scan). At most, not fewer: a
             # period of 1.6 scans comes one scan or two apart (0.8 s at 2 Hz)
             # ``restart_gaps`` in a row longer than that start the count again too: the
             # fewest was a stray (a reading one scan after the one before it, in a survey

@@ -292,9 +292,8 @@ def _score_children(bounds, h, shift, offsets, extent, a, n, i, j, half, floor, 
     """:func:`_score` of the four blocks ``(i, j)``, ``(i, j + half)``, ``(i + half, j)`` and
     ``(i + half, j + half)`` of ``bounds[h]`` at heading ``a`` (those ``on``), point by point
     together: a point's four reads go to memory at once, and on the lower levels they share
-    cache lines, where one block at a time waits for each read in turn (the same answers;
-    fr-clinic's one-scan search 20-30% faster, ACES3's, whose blocks lie farther apart, less:
-    docs/experiments/2026-11-27-loop-spacing-and-search.md). Returns the four scores, each
+    cache lines, where one block at a time waits for each read in turn (the same answers,
+    sooner; least where the blocks lie far apart). Returns the four scores, each
     the exact score where it reaches ``floor`` and −1 otherwise (and for a block not
     ``on``): what :func:`_score` gives, as its callers read it."""
     ny, nx = bounds.shape[1], bounds.shape[2]

@@ -21,7 +21,7 @@
 Confirmation (:mod:`swarmslam.runtime.localization`) tracks the candidates over ``confirm_seconds`` of
 scans and searches the newest again. :meth:`Relocalizer.relocalize_merged` merges such scans —
 placed by the motion tracked between them — into one query, meant to tell apart what one scan
-cannot; measured, it rarely does in corridors (docs/experiments/2026-11-25-readme-notebook.md, ``bench localize``).
+cannot; measured, it rarely does in corridors (``bench localize``).
 """
 
 from __future__ import annotations

@@ -6,14 +6,13 @@ by the runtime's zero-growth test), and a robot's solver should not allocate per
 
 * Ordering: exact minimum degree on the *node* graph (one vertex per 3×3 block, so a third of
   the work of a scalar ordering), with adjacency as preallocated bitsets and the blocks left in
-  an indexed heap — about 1 ms for 1,300 nodes. Quality: on the INTEL and M3500 benchmarks the
-  factor has about as many entries as with AMD (the ``posegraph`` benchmark prints both
+  an indexed heap — about 1 ms for 1,300 nodes. Quality: on the benchmark graphs the factor has
+  about as many entries as with AMD (the ``posegraph`` benchmark prints both
   figures' effect: its time).
 * Symbolic and numeric factorisation: the QDLDL algorithm (Stellato, Banjac, Goulart, Bemporad,
   Boyd: elimination tree, column counts, up-looking LDLᵀ) on the permuted upper triangle. The
   three columns of a node's block update each row in one pass, every entry's operations in
-  QDLDL's order: the same factor to the bit, 15% sooner (INTEL's final graph: 1.21 ms
-  against 1.42).
+  QDLDL's order: the same factor to the bit, sooner.
 * The factor's entries are bounded by ``fill_capacity``; a pattern that needs more raises
   :class:`FactorCapacityError` before anything is written.
 """
@@ -76,8 +75,7 @@ def minimum_degree_blocks(ij, n_nodes, bits, degree, heap, where, order):
 
     ``bits``: (capacity, words) uint64 adjacency scratch; ``heap``, ``where``: an indexed
     binary heap of the blocks left, by (degree, index), so that each step finds its block in
-    O(log n) rather than by a scan of all (INTEL's final graph, 1,293 nodes: 0.9 ms against
-    1.3). Writes ``order[:n−1]`` with block indices (node − 1)."""
+    O(log n) rather than by a scan of all. Writes ``order[:n−1]`` with block indices (node − 1)."""
     nb = n_nodes - 1
     words = (nb + 63) // 64
     for v in range(nb):

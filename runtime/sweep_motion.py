@@ -14,7 +14,7 @@ pivot starts and ends within a sweep. A SICK LMS sweeps its 180° in 13 ms (27 m
 interlaced 0.5° sweeps), where the same turn is 1.5° at most; its presets leave the sweep at
 0, which changes nothing. Only the turn is undone:
 the translation over the sweep, undone too by the motion the scans showed, cost the
-simulated logs' relations more than it gained (docs/experiments/2026-11-28-sweep.md).
+simulated logs' relations more than it gained.
 """
 
 from __future__ import annotations

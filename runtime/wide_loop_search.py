@@ -3,7 +3,7 @@ graph's estimate, does a new node's scan fit the map of the old nodes?
 
 After a long stretch with no closure the graph's estimate of a node returning to mapped ground
 may be many metres off — farther than the loop match's box (``search_window``) and the
-candidate radius reach (fr-clinic: 11.5 m after a 2,600 s loop). The ordinary search then finds
+candidate radius reach (metres after a long loop). The ordinary search then finds
 nothing, or matches the scan to the wrong corridor nearby. Here the scans of the *old* nodes
 (more than ``wide_min_gap`` nodes back, within reach of the estimate) are rendered into a hit
 grid centred on the estimate, and an exhaustive branch and bound (the relocalization's,
@@ -210,8 +210,7 @@ class WideLoopSearch:
     def angle(self, poses, since: int, node: int) -> float:
         """The headings searched either side of ``node``'s estimate: ``wide_turn_drift`` of the
         path since node ``since``, within ``wide_angle`` and ``wide_max_angle`` — a long loop
-        turns the heading's estimate as it moves its position (fr-clinic seed 3: beyond 0.5 rad
-        after 780 m)."""
+        turns the heading's estimate as it moves its position."""
         c = self.config
         wanted = c.wide_turn_drift * path_length(poses, since, node)
         return min(max(c.wide_angle, wanted), self.widest_angle)
@@ -220,7 +219,7 @@ class WideLoopSearch:
         """The window's half-width for ``node``: ``wide_drift`` of the path the graph travelled
         since node ``since`` (the last closure with the old map), within ``wide_radius`` and
         ``wide_max_radius``. The farther the robot went unanchored, the farther its estimate
-        may have drifted (fr-clinic: 95 m after a 780 m loop in a run that lost it)."""
+        may have drifted."""
         c = self.config
         wanted = c.wide_drift * path_length(poses, since, node)
         return min(max(c.wide_radius, wanted), self.widest)

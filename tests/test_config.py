@@ -200,5 +200,5 @@ def test_a_removed_field_left_off_reads_and_one_turned_on_is_refused_by_name():
     assert from_dict(older) == SlamConfig()
     older["front_end"]["odometry_noise_window"] = 200
     with pytest.raises(ConfigError, match=r"front_end.odometry_noise_window = 200: this opt-in "
-                                          r"was removed.*fewer-knobs"):
+                                          r"was removed.*docs/configuration.md"):
         from_dict(older)
