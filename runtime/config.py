@@ -905,8 +905,8 @@ REMOVED_FIELDS = {
     "front_end.odometry_turn_split": None, "front_end.odometry_sigma_floor": None,
     "front_end.match_heading_sigma": None, "front_end.odometry_scale_window": 0,
     "front_end.odometry_scale_min_steps": None, "front_end.odometry_scale_min_step": None,
-    "front_end.odometry_scale_max_turn": None, "front_end.odometry_scale_dead_zone": None,
-    "front_end.odometry_scale_confidence": None, "loop_closure.wide_total_gate": NONE,
+    "front_end.odometry_scale_max_turn": None, "front_end.odometry_scale_confidence": None,
+    "loop_closure.wide_total_gate": NONE,
     "loop_closure.degenerate_share": "floor", "loop_closure.stale_turn_window": None}
 
 

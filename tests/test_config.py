@@ -9,6 +9,7 @@ from swarmslam.hardware.models import MODELS
 from swarmslam.runtime.config import (
     OPTIMIZERS,
     PRESETS,
+    REMOVED_FIELDS,
     RPLIDAR_MODELS,
     SIMULATED_LIDARS,
     ConfigError,
@@ -189,12 +190,23 @@ def test_a_shorter_listing_is_a_valid_file_of_the_fields_it_shows(level):
     assert back == override(config, {"loop_closure.wide_levels": base.loop_closure.wide_levels})
 
 
+def test_no_removed_field_is_a_field_again():
+    """A name in REMOVED_FIELDS is dropped from every file and session that names it: one the
+    configuration has again would be ignored without a word (odometry_scale_dead_zone was)."""
+    fields = to_dict(SlamConfig())
+    again = [path for path in REMOVED_FIELDS
+             if path.split(".")[1] in fields[path.split(".")[0]]]
+    assert not again, again
+    changed = from_dict({"front_end": {"odometry_scale_dead_zone": 0.02}})
+    assert changed.front_end.odometry_scale_dead_zone == 0.02
+
+
 def test_a_removed_field_left_off_reads_and_one_turned_on_is_refused_by_name():
     """A session or file from the version that still had the opt-ins: their keys at the
     values that left them off read as before; one that turned its path on needs that version."""
     older = to_dict(SlamConfig())
     older["front_end"].update(odometry_noise_window=0, match_heading_sigma=[0.0035, 0.014],
-                              odometry_scale_window=0, odometry_scale_dead_zone=0.0075)
+                              odometry_scale_window=0)
     older["loop_closure"].update(wide_total_gate="none", degenerate_share="floor",
                                  stale_turn_window=0.6)
     assert from_dict(older) == SlamConfig()
