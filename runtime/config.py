@@ -533,7 +533,7 @@ class LoopClosureConfig(Section):
         "direction, where its value is the graph's own estimate, not a measurement (a wide "
         "search's proposal keeps the share its curvature supports; docs/method.md §5, step 3)",
         gt=0, le=1)
-    # The wide search after a long drift (runtime/wide_loop_search.py; docs/method.md §5).
+    # The wide search after a long drift (runtime/back_end/wide_loop_search.py; docs/method.md §5).
     wide_after: int = _setting(
         10, "nodes since the last kept closure after which a node whose ordinary search found "
         "nothing is searched for widely (0: never)", ge=0)

@@ -13,12 +13,24 @@ import math
 import numpy as np
 from numba import njit
 
-from swarmslam.runtime.loop_closure import polar_image
 from swarmslam.runtime.pose import between_nb, compose, place_points_nb
-from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.matching.scan import PointScan
 
 
 NO_EVIDENCE, SURFACE, THROUGH = 0, 1, 2  # what one scan saw of a place (_seen_by)
+
+
+@njit(cache=True)
+def polar_image(points, count, image):
+    """The nearest range per bearing bin of a scan in its own frame (``inf``: no return)."""
+    bins = image.shape[0]
+    image[:] = np.inf
+    for k in range(count):
+        r = math.hypot(points[k, 0], points[k, 1])
+        b = int((math.atan2(points[k, 1], points[k, 0]) + math.pi) * bins / (2 * math.pi)) % bins
+        if r < image[b]:
+            image[b] = r
+    return image
 
 
 @njit(cache=True)

@@ -23,6 +23,24 @@ ODOMETRY = 0
 LOOP = 1
 
 
+@njit(cache=True)
+def propagate_covariance(cov_prev, pose_prev, z, z_cov, out):
+    """Covariance of ``pose_prev ⊕ z`` (world frame) from those of the two, linearised."""
+    c = math.cos(pose_prev[2])
+    s = math.sin(pose_prev[2])
+    # J_x: ∂(x ⊕ z)/∂x ; J_z: ∂(x ⊕ z)/∂z
+    jx = np.eye(3)
+    jx[0, 2] = -s * z[0] - c * z[1]
+    jx[1, 2] = c * z[0] - s * z[1]
+    jz = np.zeros((3, 3))
+    jz[0, 0] = c
+    jz[0, 1] = -s
+    jz[1, 0] = s
+    jz[1, 1] = c
+    jz[2, 2] = 1.0
+    out[:, :] = jx @ cov_prev @ jx.T + jz @ z_cov @ jz.T
+
+
 class CapacityError(RuntimeError):
     """A fixed capacity of the graph is exhausted."""
 

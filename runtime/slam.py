@@ -6,8 +6,8 @@ glue (docs/method.md §6).
         result = slam.step(scan, odometry)    # odometry optional, as in the paper
     grid = slam.global_map()
 
-:class:`~swarmslam.runtime.front_end.FrontEnd` tracks each scan against the keyframe (Alg. 5) and
-inserts nodes (Alg. 6); :class:`~swarmslam.runtime.back_end.BackEnd` seeks a loop closure for each new
+:class:`~swarmslam.runtime.front_end.tracker.FrontEnd` tracks each scan against the keyframe (Alg. 5) and
+inserts nodes (Alg. 6); :class:`~swarmslam.runtime.back_end.slices.BackEnd` seeks a loop closure for each new
 node (Alg. 7) and re-optimises the graph (Eq. 21). Both work on one pose graph and one store of
 node scans. Capacities (nodes, edges, points per stored scan, trajectory length) are fixed at
 start-up.
@@ -19,17 +19,17 @@ from dataclasses import asdict
 
 import numpy as np
 
-from swarmslam.runtime.back_end import SLICE_NAMES, BackEnd
+from swarmslam.runtime.back_end.slices import SLICE_NAMES, BackEnd
 from swarmslam.runtime.config import SlamConfig
-from swarmslam.runtime.front_end import FrontEnd
-from swarmslam.runtime.localization import TRACKING, Localizer
-from swarmslam.runtime.map_tracking import SavedMap
+from swarmslam.runtime.front_end.tracker import FrontEnd
+from swarmslam.runtime.localization.localizer import TRACKING, Localizer
+from swarmslam.runtime.localization.map_tracking import SavedMap
 from swarmslam.runtime.node_scans import NodeScans
 from swarmslam.runtime.occupancy_grid import OccupancyGrid
 from swarmslam.runtime.pose import between
 from swarmslam.runtime.pose_graph import PoseGraph
 from swarmslam.runtime.resources import check_memory
-from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.matching.scan import PointScan
 from swarmslam.runtime.step_result import StepResult
 
 

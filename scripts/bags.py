@@ -37,7 +37,7 @@ import numpy as np
 
 from swarmslam.carmen import (ODOMETRY_MAX_GAP, CarmenLog, LaserRecord, OdometryRecord,
                               pose_between)
-from swarmslam.runtime.scan import binned_ranges
+from swarmslam.runtime.matching.scan import binned_ranges
 
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
 ODOMETRY_TYPE = "nav_msgs/msg/Odometry"

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from swarmslam.runtime.pose import between, compose
-from swarmslam.runtime.text_records import DataFormatError, records
+from swarmslam.runtime.realtime.text_records import DataFormatError, records
 
 # Readings at or beyond this are "no return" in a FLASER log that does not show its own value
 # (Intel's scanner reads 81.83, ACES3's 50.0: see flaser_no_return).

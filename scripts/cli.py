@@ -24,8 +24,8 @@ from swarmslam.runtime.config import (
     shown,
     to_toml,
 )
-from swarmslam.runtime.inbox import skipped_text
-from swarmslam.runtime.writers import write_bytes_atomic
+from swarmslam.runtime.realtime.inbox import skipped_text
+from swarmslam.runtime.realtime.writers import write_bytes_atomic
 from swarmslam.run_view import RunWatch
 
 

@@ -17,7 +17,7 @@ import gymnasium as gym
 import numpy as np
 
 from swarmslam.runtime.config import SlamConfig
-from swarmslam.runtime.writers import write_json_atomic
+from swarmslam.runtime.realtime.writers import write_json_atomic
 from swarmslam.map_io import write_map
 from swarmslam.png import write_png
 from swarmslam.progress import Progress

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from swarmslam.runtime.pose_graph import LOOP, ODOMETRY, PoseGraph
-from swarmslam.runtime.text_records import DataFormatError, parse_numbers, records
-from swarmslam.runtime.writers import write_text_atomic
+from swarmslam.runtime.realtime.text_records import DataFormatError, parse_numbers, records
+from swarmslam.runtime.realtime.writers import write_text_atomic
 
 
 class G2oFormatError(DataFormatError):

@@ -19,8 +19,8 @@ from swarmslam.hardware.driver import RPLidar
 from swarmslam.hardware.models import MODELS
 from swarmslam.hardware.models import model as get_model
 from swarmslam.runtime.config import SlamConfig, override, preset
-from swarmslam.runtime.fixed_rate import SlamRuntime
-from swarmslam.runtime.writers import write_json_atomic
+from swarmslam.runtime.realtime.fixed_rate import SlamRuntime
+from swarmslam.runtime.realtime.writers import write_json_atomic
 from swarmslam.bags import BagRecorder
 from swarmslam.outputs import check_writable, clean_stale, output_set, write_results
 from swarmslam.run_view import frame_of

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from swarmslam.runtime.occupancy_grid import OccupancyGrid, probability
-from swarmslam.runtime.writers import write_bytes_atomic, write_text_atomic
+from swarmslam.runtime.realtime.writers import write_bytes_atomic, write_text_atomic
 from swarmslam.png import write_png
 
 OCCUPIED_THRESH = 0.65

@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 
 from swarmslam.runtime.pose import between, compose, transform_points
-from swarmslam.runtime.scan import PointScan
-from swarmslam.runtime.scan_matcher import MatcherConfig, ScanMatcher
-from swarmslam.runtime.warm_up import loop_path, room_world, scan_at
-from swarmslam.runtime.writers import write_json_atomic
+from swarmslam.runtime.matching.scan import PointScan
+from swarmslam.runtime.matching.scan_matcher import MatcherConfig, ScanMatcher
+from swarmslam.runtime.realtime.warm_up import loop_path, room_world, scan_at
+from swarmslam.runtime.realtime.writers import write_json_atomic
 from swarmslam.metrics import relative_errors
 from swarmslam.png import write_png
 from swarmslam.progress import Progress

@@ -26,8 +26,8 @@ import math
 import numpy as np
 from mcap.writer import Writer
 
-from swarmslam.runtime.scan import binned_ranges
-from swarmslam.runtime.writers import AtomicFile
+from swarmslam.runtime.matching.scan import binned_ranges
+from swarmslam.runtime.realtime.writers import AtomicFile
 
 _TIME = {"type": "object", "properties": {"sec": {"type": "integer", "minimum": 0},
                                           "nsec": {"type": "integer", "minimum": 0}}}

@@ -2,7 +2,7 @@
 docs/formats.md, "metrics.json").
 
 A robot's odometry is set up by hand: a wheel radius, a wheel base. The SLAM fits the
-distance scale where it must (:mod:`swarmslam.runtime.odometry_scale`), and a run tells the
+distance scale where it must (:mod:`swarmslam.runtime.front_end.odometry_scale`), and a run tells the
 user how far off both are, from the trajectory's motion between scans with consecutive new
 readings against odometry's over the same readings:
 
@@ -19,7 +19,7 @@ readings against odometry's over the same readings:
   poses"); absent where the run could not tell (too few readings, or the matches look exact).
 
     >>> import numpy as np
-    >>> from swarmslam.runtime.between_scans import NEW_READING
+    >>> from swarmslam.runtime.front_end.between_scans import NEW_READING
     >>> path = np.c_[np.arange(50) * 0.1, np.zeros(50), np.zeros(50)]  # 0.1 m a scan
     >>> odometry = path * [0.97, 1.0, 1.0]                             # reads 3% short
     >>> round(translation_scale(path, odometry, np.full(50, NEW_READING))[0], 4)
@@ -32,7 +32,7 @@ import math
 
 import numpy as np
 
-from swarmslam.runtime.between_scans import linked
+from swarmslam.runtime.front_end.between_scans import linked
 from swarmslam.runtime.pose import between
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from swarmslam.runtime.pose import transform_points
-from swarmslam.runtime.writers import write_bytes_atomic
+from swarmslam.runtime.realtime.writers import write_bytes_atomic
 
 
 def require_matplotlib() -> None:

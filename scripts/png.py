@@ -11,7 +11,7 @@ import zlib
 
 import numpy as np
 
-from swarmslam.runtime.writers import write_bytes_atomic
+from swarmslam.runtime.realtime.writers import write_bytes_atomic
 
 
 def encode_png(image: np.ndarray) -> bytes:

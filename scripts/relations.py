@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from swarmslam.runtime.text_records import DataFormatError, parse_numbers, records
+from swarmslam.runtime.realtime.text_records import DataFormatError, parse_numbers, records
 
 _FIELDS = ("t1", "t2", "x", "y", "z", "roll", "pitch", "yaw")
 

@@ -42,8 +42,8 @@ from scipy.spatial import cKDTree
 
 from swarmslam.runtime.config import SensorConfig
 from swarmslam.runtime.pose import between, compose, transform_points
-from swarmslam.runtime.scan import PointScan
-from swarmslam.runtime.writers import write_json_atomic
+from swarmslam.runtime.matching.scan import PointScan
+from swarmslam.runtime.realtime.writers import write_json_atomic
 from swarmslam.carmen import read_carmen
 from swarmslam.icp import icp
 from swarmslam.metrics import LOCAL_GAP, SHORT_GAP, kummerle, match_relations, relation_errors

@@ -16,10 +16,10 @@ from dataclasses import fields
 import numpy as np
 
 from swarmslam.runtime.config import ConfigError, SensorConfig, SlamConfig, override
-from swarmslam.runtime.fixed_rate import SlamRuntime
+from swarmslam.runtime.realtime.fixed_rate import SlamRuntime
 from swarmslam.runtime.pose import compose
-from swarmslam.runtime.scan import PointScan, ranges_to_points
-from swarmslam.runtime.writers import write_json_atomic
+from swarmslam.runtime.matching.scan import PointScan, ranges_to_points
+from swarmslam.runtime.realtime.writers import write_json_atomic
 from swarmslam.logs import BagOptions, read_log
 from swarmslam.metrics import kummerle, match_relations
 from swarmslam.outputs import check_writable, output_set, write_results

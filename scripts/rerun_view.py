@@ -26,7 +26,7 @@ import rerun as rr
 
 from swarmslam.runtime.pose import compose
 from swarmslam.runtime.pose_graph import ODOMETRY
-from swarmslam.runtime.writers import AtomicFile
+from swarmslam.runtime.realtime.writers import AtomicFile
 from swarmslam.map_painter import map_nodes
 
 APP = "swarmslam"

@@ -37,7 +37,7 @@ class Frame:
 
 
 def frame_of(runtime, result, points, stamp: float, latency_s: float, truth=None) -> Frame:
-    """The :class:`Frame` of a :class:`swarmslam.runtime.fixed_rate.SlamRuntime` tick that gave
+    """The :class:`Frame` of a :class:`swarmslam.runtime.realtime.fixed_rate.SlamRuntime` tick that gave
     ``result`` (a :class:`swarmslam.runtime.step_result.StepResult`) for the scan ``points``."""
     slam = runtime.slam
     front_end = getattr(slam, "front_end", None)  # mapping; a localizer has none

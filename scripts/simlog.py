@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from swarmslam.runtime.pose import between
-from swarmslam.runtime.writers import write_bytes_atomic, write_text_atomic
+from swarmslam.runtime.realtime.writers import write_bytes_atomic, write_text_atomic
 from swarmslam.carmen import flaser_line, odom_line, robotlaser1_line
 from swarmslam.relations import relations_text
 from swarmslam.tum import tum_lines

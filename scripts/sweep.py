@@ -45,7 +45,7 @@ from swarmslam.runtime.config import (
     override,
     preset,
 )
-from swarmslam.runtime.writers import write_json_atomic
+from swarmslam.runtime.realtime.writers import write_json_atomic
 from swarmslam.bench.slam import LOGS
 from swarmslam.datasets import find_datasets, require
 from swarmslam.progress import Progress

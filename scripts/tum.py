@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from swarmslam.runtime.writers import write_text_atomic
+from swarmslam.runtime.realtime.writers import write_text_atomic
 
 
 def tum_lines(timestamps, poses) -> str:

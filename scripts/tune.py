@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from swarmslam.runtime.config import ConfigError, override, to_toml
-from swarmslam.runtime.writers import write_bytes_atomic, write_json_atomic
+from swarmslam.runtime.realtime.writers import write_bytes_atomic, write_json_atomic
 from swarmslam.bench.slam import PUBLISHED
 from swarmslam.sweep import (
     Run,

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from gymnasium.envs.registration import register, registry
 
-from swarmslam.runtime.kernel_cache import refresh
+from swarmslam.runtime.realtime.kernel_cache import refresh
 
 refresh(Path(__file__).parent)  # before any kernel of this package is loaded
 

@@ -11,10 +11,10 @@ import numpy as np
 from gymnasium import spaces
 
 from swarmslam.runtime.config import OPTIMIZERS, SlamConfig, override, simulated
-from swarmslam.runtime.fixed_rate import SlamRuntime
-from swarmslam.runtime.localization import TRACKING
+from swarmslam.runtime.realtime.fixed_rate import SlamRuntime
+from swarmslam.runtime.localization.localizer import TRACKING
 from swarmslam.runtime.pose import between_nb, compose_nb, wrap_angle, wrap_angle_nb
-from swarmslam.runtime.scan import PointScan, directions_to_points
+from swarmslam.runtime.matching.scan import PointScan, directions_to_points
 from swarmslam_sim.catalog import get_world
 from swarmslam_sim.lidar import Lidar, lidar_config
 from swarmslam_sim.mapping import crop_probability, wall_clearance, world_grid

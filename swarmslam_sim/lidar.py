@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numba import njit
 
-from swarmslam.runtime.scan import beam_directions
+from swarmslam.runtime.matching.scan import beam_directions
 from swarmslam_sim.raycast import build_grid, cast_scan
 from swarmslam_sim.world import World
 

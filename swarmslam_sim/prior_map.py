@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from swarmslam.runtime.map_tracking import SavedMap
+from swarmslam.runtime.localization.map_tracking import SavedMap
 from swarmslam.runtime.node_scans import NodeScans
-from swarmslam.runtime.scan import PointScan
-from swarmslam.runtime.session import read_session
+from swarmslam.runtime.matching.scan import PointScan
+from swarmslam.runtime.realtime.session import read_session
 from swarmslam_sim.lidar import Lidar
 from swarmslam_sim.mapping import wall_clearance, world_grid
 from swarmslam_sim.world import World

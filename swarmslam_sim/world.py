@@ -11,7 +11,7 @@ The ``.world`` format — one statement per line, metres and degrees, ``#`` star
     box     10 6 1.2 0.6 30            # a rectangle: centre x y, width, height, angle_deg
 
 Everything is stored as segments ``(M, 4)`` (x0 y0 x1 y1): the LiDAR caster and the physics see
-exactly the same geometry. Bad input raises :class:`swarmslam.runtime.text_records.DataFormatError`
+exactly the same geometry. Bad input raises :class:`swarmslam.runtime.realtime.text_records.DataFormatError`
 naming file, line and field.
 """
 
@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from swarmslam.runtime.text_records import DataFormatError, parse_numbers, records
-from swarmslam.runtime.writers import write_text_atomic
+from swarmslam.runtime.realtime.text_records import DataFormatError, parse_numbers, records
+from swarmslam.runtime.realtime.writers import write_text_atomic
 
 
 MAX_EXTENT = 1000.0  # m per side: a campus floor fits; the ray caster's grid stays small

@@ -1,5 +1,5 @@
 """Sessions as an older build saved them, made from a current state: what the migrations in
-:mod:`swarmslam.runtime.session` must bring back."""
+:mod:`swarmslam.runtime.realtime.session` must bring back."""
 
 from __future__ import annotations
 

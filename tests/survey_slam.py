@@ -3,7 +3,7 @@
 import numpy as np
 
 from swarmslam.runtime.pose import between
-from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.matching.scan import PointScan
 from swarmslam.runtime.slam import GraphSlam
 
 

@@ -11,11 +11,11 @@ import numpy as np
 from numba.core.runtime import rtsys
 
 from swarmslam.runtime.config import SensorConfig
-from swarmslam.runtime.optimizers import SwarmConfig
-from swarmslam.runtime.scan import PointScan
-from swarmslam.runtime.scan_matcher import N_OUT, MatcherConfig, ScanMatcher
-from swarmslam.runtime.sweep_motion import SweepMotion
-from swarmslam.runtime.warm_up import pose_after, room_world, scan_at
+from swarmslam.runtime.matching.optimizers import SwarmConfig
+from swarmslam.runtime.matching.scan import PointScan
+from swarmslam.runtime.matching.scan_matcher import N_OUT, MatcherConfig, ScanMatcher
+from swarmslam.runtime.matching.sweep_motion import SweepMotion
+from swarmslam.runtime.realtime.warm_up import pose_after, room_world, scan_at
 
 ANGLES = np.deg2rad(np.arange(-180, 180, 1.0))
 
@@ -118,7 +118,7 @@ def test_no_traced_memory_growth_per_match_after_warm_up():
 
 
 def test_no_traced_memory_growth_per_undistorted_sweep_after_warm_up():
-    """A sweep's two passes (runtime/sweep_motion.py) and the settled match: nothing kept."""
+    """A sweep's two passes (runtime/matching/sweep_motion.py) and the settled match: nothing kept."""
     grown, peak = in_fresh_interpreter("traced_sweeps")
     assert grown <= 256, f"traced memory grew {grown} B over 3000 sweeps"
     assert peak < 4096, peak

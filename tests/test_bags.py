@@ -14,7 +14,7 @@ from scipy.spatial import cKDTree
 
 from swarmslam.runtime.config import SlamConfig
 from swarmslam.runtime.pose import between, compose
-from swarmslam.runtime.warm_up import loop_path, room_world, scan_at
+from swarmslam.runtime.realtime.warm_up import loop_path, room_world, scan_at
 from swarmslam.bags import BagError, BagWriter, read_bag, write_bag
 from swarmslam.carmen import flaser_angles, read_carmen
 from swarmslam.cli import main

@@ -1,4 +1,4 @@
-"""The scans between nodes smoothed with odometry's motion (swarmslam.runtime.between_scans,
+"""The scans between nodes smoothed with odometry's motion (swarmslam.runtime.front_end.between_scans,
 docs/method.md §6.2 "Between-scan poses")."""
 
 import copy
@@ -6,15 +6,15 @@ import copy
 import numpy as np
 import pytest
 
-from swarmslam.runtime.between_scans import (FIRST_READING, NEW_READING, NO_READING,
+from swarmslam.runtime.front_end.between_scans import (FIRST_READING, NEW_READING, NO_READING,
                                              STALE_READING, BetweenSmoothing, estimate_noise,
                                              smooth_headings, smooth_positions)
 from swarmslam.runtime.config import SlamConfig, override
 from swarmslam.runtime.pose import between, compose, wrap_angle
-from swarmslam.runtime.scan import PointScan
-from swarmslam.runtime.session import migrate
+from swarmslam.runtime.matching.scan import PointScan
+from swarmslam.runtime.realtime.session import migrate
 from swarmslam.runtime.slam import GraphSlam
-from swarmslam.runtime.warm_up import loop_path, room_world, scan_at
+from swarmslam.runtime.realtime.warm_up import loop_path, room_world, scan_at
 
 from old_sessions import as_version_6
 from test_slam import ANGLES, run

@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 
 from swarmslam.runtime.config import ConfigError, SlamConfig, from_toml, override
-from swarmslam.runtime.fixed_rate import SlamRuntime
-from swarmslam.runtime.inbox import ScanInbox
+from swarmslam.runtime.realtime.fixed_rate import SlamRuntime
+from swarmslam.runtime.realtime.inbox import ScanInbox
 from swarmslam.runtime.occupancy_grid import OccupancyGrid, integrate_scan
 from swarmslam.runtime.resources import check_memory
-from swarmslam.runtime.warm_up import loop_path, room_world, scan_at
+from swarmslam.runtime.realtime.warm_up import loop_path, room_world, scan_at
 from swarmslam.carmen import flaser_angles, read_carmen
 from swarmslam.cli import main
 from swarmslam.tum import read_tum
@@ -399,7 +399,7 @@ def test_a_user_who_cannot_write_home_nor_the_package_still_runs(tmp_path):
     env = {**{k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"},
            "PYTHONPATH": str(site), "HOME": "/dev/null", "XDG_CACHE_HOME": "/dev/null/cache",
            "PYTHONDONTWRITEBYTECODE": "1"}
-    code = ("import numpy as np, numba; from swarmslam.runtime.scan import ranges_to_points; "
+    code = ("import numpy as np, numba; from swarmslam.runtime.matching.scan import ranges_to_points; "
             "out = np.zeros((3, 2)); "
             "print(ranges_to_points(np.ones(3), np.zeros(3), 0.0, 5.0, out), "
             "numba.config.CACHE_DIR)")

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from swarmslam.runtime.config import SensorConfig, SlamConfig, override
-from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.matching.scan import PointScan
 from swarmslam.carmen import (
     CarmenFormatError,
     flaser_angles,

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from swarmslam.runtime.warm_up import loop_path, room_world, scan_at
+from swarmslam.runtime.realtime.warm_up import loop_path, room_world, scan_at
 from swarmslam.carmen import flaser_angles
 from swarmslam.cli import main
 from swarmslam.tum import read_tum

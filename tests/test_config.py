@@ -24,8 +24,8 @@ from swarmslam.runtime.config import (
     to_dict,
     to_toml,
 )
-from swarmslam.runtime.objectives import KERNELS
-from swarmslam.runtime.optimizers import ABC, FA, PSO
+from swarmslam.runtime.matching.objectives import KERNELS
+from swarmslam.runtime.matching.optimizers import ABC, FA, PSO
 from swarmslam.cli import main
 from swarmslam_sim.lidar import PRESETS as SIM_LIDARS
 

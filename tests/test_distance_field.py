@@ -3,10 +3,10 @@
 import numpy as np
 from scipy.spatial import cKDTree
 
-from swarmslam.runtime.distance_field import (INDEXED, N_META, N_SURFACE, NX, NY,
+from swarmslam.runtime.matching.distance_field import (INDEXED, N_META, N_SURFACE, NX, NY,
                                                build_distance_field, cell_costs, column_centres,
                                                field_lookup, list_surfaces, splat_segment)
-from swarmslam.runtime.objectives import inlier_fraction, surface_inliers
+from swarmslam.runtime.matching.objectives import inlier_fraction, surface_inliers
 
 
 def build(points, res=0.05, radius=0.5, gap=0.0, cells=512, inv_c2=0.0, bend=0.0,

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 from swarmslam.runtime.config import SlamConfig, override
-from swarmslam.runtime.degeneracy import Degeneracy
-from swarmslam.runtime.graph_optimizer import GaussNewton
-from swarmslam.runtime.loop_closure import visibility
+from swarmslam.runtime.matching.degeneracy import Degeneracy
+from swarmslam.runtime.back_end.graph_optimizer import GaussNewton
+from swarmslam.runtime.back_end.loop_closure import visibility
 from swarmslam.runtime.pose import between, compose
 from swarmslam.runtime.pose_graph import LOOP, ODOMETRY
-from swarmslam.runtime.scan import PointScan
-from swarmslam.runtime.scan_matcher import ScanMatcher
+from swarmslam.runtime.matching.scan import PointScan
+from swarmslam.runtime.matching.scan_matcher import ScanMatcher
 from swarmslam.runtime.slam import GraphSlam
 from swarmslam.bench.generalization import (
     CASES,

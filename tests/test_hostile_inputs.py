@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 
 from swarmslam.runtime.config import SlamConfig
-from swarmslam.runtime.fixed_rate import SlamRuntime
-from swarmslam.runtime.session import SessionError, read_session, write_session
-from swarmslam.runtime.text_records import DataFormatError
-from swarmslam.runtime.warm_up import loop_path, room_world, scan_at
+from swarmslam.runtime.realtime.fixed_rate import SlamRuntime
+from swarmslam.runtime.realtime.session import SessionError, read_session, write_session
+from swarmslam.runtime.realtime.text_records import DataFormatError
+from swarmslam.runtime.realtime.warm_up import loop_path, room_world, scan_at
 from swarmslam.carmen import flaser_angles, read_carmen
 from swarmslam.cli import main
 from swarmslam.outputs import _staging, clean_stale, output_set

@@ -1,7 +1,7 @@
-"""swarmslam.runtime.kernel_cache: numba caches made under other sources are dropped at import, so no
+"""swarmslam.runtime.realtime.kernel_cache: numba caches made under other sources are dropped at import, so no
 stale compiled kernel runs after an edit (numba keys a cache on its own file only)."""
 
-from swarmslam.runtime.kernel_cache import STAMP, refresh
+from swarmslam.runtime.realtime.kernel_cache import STAMP, refresh
 
 
 def test_caches_made_under_other_sources_are_dropped(tmp_path):

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from swarmslam.runtime.distance_field import N_META, OX, OY, RES, build_distance_field
-from swarmslam.runtime.local_map import UNKNOWN, build_local_map, robot_square
+from swarmslam.runtime.matching.distance_field import N_META, OX, OY, RES, build_distance_field
+from swarmslam.runtime.matching.local_map import UNKNOWN, build_local_map, robot_square
 
 
 def test_eq17_robot_square():

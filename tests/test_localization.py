@@ -1,4 +1,4 @@
-"""Localization mode (swarmslam.runtime.localization, swarmslam.runtime.map_tracking) and multi-session mapping:
+"""Localization mode (swarmslam.runtime.localization.localizer, swarmslam.runtime.localization.map_tracking) and multi-session mapping:
 tracking in a saved map that stays byte for byte the same, a match that slips refused by the
 odometry gate, a robot found with no prior and again after it is carried away, twin rooms left
 unresolved rather than answered wrongly, a corrupt session refused, and two sessions joined
@@ -17,15 +17,15 @@ from test_relocalization import ANGLES, close, map_from
 
 import swarmslam_sim  # noqa: F401  (registers SwarmSlam-v0)
 from swarmslam.runtime.config import SlamConfig, override
-from swarmslam.runtime.fixed_rate import SlamRuntime
-from swarmslam.runtime.localization import CONFIRMING, SEARCHING, TRACKING, Localizer
-from swarmslam.runtime.map_tracking import SavedMap, nearest_nodes
+from swarmslam.runtime.realtime.fixed_rate import SlamRuntime
+from swarmslam.runtime.localization.localizer import CONFIRMING, SEARCHING, TRACKING, Localizer
+from swarmslam.runtime.localization.map_tracking import SavedMap, nearest_nodes
 from swarmslam.runtime.node_scans import NodeScans
 from swarmslam.runtime.pose import between, compose
-from swarmslam.runtime.relocalization import Ambiguous, Located
-from swarmslam.runtime.scan import PointScan
-from swarmslam.runtime.session import SessionError
-from swarmslam.runtime.warm_up import LoopDrive, loop_path, room_world, scan_at
+from swarmslam.runtime.localization.relocalization import Ambiguous, Located
+from swarmslam.runtime.matching.scan import PointScan
+from swarmslam.runtime.realtime.session import SessionError
+from swarmslam.runtime.realtime.warm_up import LoopDrive, loop_path, room_world, scan_at
 from swarmslam_sim.lidar import Lidar, lidar_config
 from swarmslam_sim.mapping import map_error
 from swarmslam_sim.world import World
@@ -126,7 +126,7 @@ def slipping_matches(matcher, offset):
 
 
 def test_a_committed_pose_refuses_a_match_odometry_contradicts(saved_loop):
-    """The odometry gate (swarmslam.runtime.map_tracking, MapTracker._gated): a match that slips 0.5 m
+    """The odometry gate (swarmslam.runtime.localization.map_tracking, MapTracker._gated): a match that slips 0.5 m
     is refused, at most ``max_held_scans`` times in a row; a turn is not judged."""
     path, drive, scan = saved_loop
 

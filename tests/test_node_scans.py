@@ -2,7 +2,7 @@ import numpy as np
 
 from swarmslam.runtime.node_scans import NodeScans
 from swarmslam.runtime.pose import between, compose
-from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.matching.scan import PointScan
 
 BEARINGS = np.radians(np.arange(-30.0, 30.5, 1.0))
 

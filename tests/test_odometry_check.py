@@ -9,12 +9,12 @@ from swarmslam import odometry_check
 from swarmslam.cli import main
 from swarmslam.odometry_check import odometry_seen, translation_scale
 from swarmslam.replay import replay_run
-from swarmslam.runtime.between_scans import NEW_READING, NO_READING, STALE_READING
+from swarmslam.runtime.front_end.between_scans import NEW_READING, NO_READING, STALE_READING
 from swarmslam.runtime.config import SlamConfig
 from swarmslam.runtime.pose import between, compose
-from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.matching.scan import PointScan
 from swarmslam.runtime.slam import GraphSlam
-from swarmslam.runtime.warm_up import loop_path, room_world, scan_at
+from swarmslam.runtime.realtime.warm_up import loop_path, room_world, scan_at
 
 ANGLES = np.deg2rad(np.arange(-180, 180, 1.0))
 

@@ -1,4 +1,4 @@
-"""What each scan's odometry reading predicts (runtime/odometry_readings.py, docs/method.md
+"""What each scan's odometry reading predicts (runtime/front_end/odometry_readings.py, docs/method.md
 §6.1 "A stale reading"): a new reading's motion since the last new one, a stale reading's
 continued translation while fewer scans have passed than the last reading took to come."""
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from swarmslam.runtime.config import SlamConfig
-from swarmslam.runtime.odometry_readings import OdometryReadings
+from swarmslam.runtime.front_end.odometry_readings import OdometryReadings
 
 
 def test_a_new_reading_predicts_its_motion_since_the_last_new_one():

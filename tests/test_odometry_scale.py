@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from swarmslam.runtime.config import ConfigError, SlamConfig, override
-from swarmslam.runtime.odometry_scale import BINS, OdometryScale
+from swarmslam.runtime.front_end.odometry_scale import BINS, OdometryScale
 from swarmslam.runtime.pose import between, compose
 from swarmslam.runtime.pose_graph import ODOMETRY, PoseGraph
-from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.matching.scan import PointScan
 from swarmslam.runtime.slam import GraphSlam
-from swarmslam.runtime.warm_up import scan_at
+from swarmslam.runtime.realtime.warm_up import scan_at
 
 ANGLES = np.deg2rad(np.arange(-180, 180, 1.0))
 

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from swarmslam.runtime.config import MatcherConfig
-from swarmslam.runtime.optimizers import SwarmConfig, SwarmOptimizer
-from swarmslam.runtime.scan_matcher import S_STALL_IT, ScanMatcher
+from swarmslam.runtime.matching.optimizers import SwarmConfig, SwarmOptimizer
+from swarmslam.runtime.matching.scan_matcher import S_STALL_IT, ScanMatcher
 
 OPTIMIZERS = ["pso", "abc", "fa"]
 

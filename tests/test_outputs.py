@@ -6,7 +6,7 @@ import zlib
 import numpy as np
 import pytest
 
-from swarmslam.runtime import writers
+from swarmslam.runtime.realtime import writers
 from swarmslam.png import encode_png
 from swarmslam.tum import read_tum, write_tum
 from swarmslam_sim.canvas import Canvas

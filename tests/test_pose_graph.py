@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from swarmslam.runtime.graph_optimizer import GaussNewton
+from swarmslam.runtime.back_end.graph_optimizer import GaussNewton
 from swarmslam.runtime.pose import between, compose
 from swarmslam.runtime.pose_graph import LOOP, CapacityError, PoseGraph, information_from_sigma
 from swarmslam.g2o import G2oFormatError, read_g2o, write_g2o
@@ -161,7 +161,7 @@ def test_swapping_an_edge_is_seen_by_the_cached_solver():
 
 def test_a_factor_beyond_its_capacity_is_refused_naming_the_field_that_raises_it():
     from swarmslam.runtime.config import field_names
-    from swarmslam.runtime.sparse_ldl import FactorCapacityError
+    from swarmslam.runtime.back_end.sparse_ldl import FactorCapacityError
 
     truth = square_loop()
     n = len(truth)

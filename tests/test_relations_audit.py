@@ -9,7 +9,7 @@ import pytest
 
 import swarmslam.relations_audit as relations_audit
 from swarmslam.runtime.pose import between, compose
-from swarmslam.runtime.warm_up import loop_path, room_world, scan_at
+from swarmslam.runtime.realtime.warm_up import loop_path, room_world, scan_at
 from swarmslam.carmen import flaser_angles
 from swarmslam.cli import main
 from swarmslam.plots import gross_failures_figure

@@ -1,4 +1,4 @@
-"""Global relocalization (swarmslam.runtime.place_search, swarmslam.runtime.relocalization): the branch-and-bound
+"""Global relocalization (swarmslam.runtime.matching.place_search, swarmslam.runtime.localization.relocalization): the branch-and-bound
 search is exact, a kidnapped robot is found with no prior, and a symmetric world is called
 ambiguous rather than answered wrongly."""
 
@@ -10,7 +10,7 @@ import pytest
 
 from swarmslam.runtime.config import SlamConfig, override
 from swarmslam.runtime.node_scans import NodeScans
-from swarmslam.runtime.place_search import (
+from swarmslam.runtime.matching.place_search import (
     HIT_MAX,
     SEARCH_STATE,
     UNLIMITED,
@@ -27,9 +27,9 @@ from swarmslam.runtime.place_search import (
     select_query,
 )
 from swarmslam.runtime.pose import between
-from swarmslam.runtime.relocalization import Ambiguous, Located, Relocalizer
-from swarmslam.runtime.scan import PointScan
-from swarmslam.runtime.warm_up import loop_path, room_world, scan_at
+from swarmslam.runtime.localization.relocalization import Ambiguous, Located, Relocalizer
+from swarmslam.runtime.matching.scan import PointScan
+from swarmslam.runtime.realtime.warm_up import loop_path, room_world, scan_at
 
 ANGLES = np.linspace(-np.pi, np.pi, 360, endpoint=False)
 # the test worlds are small enough for the exact search: this searches them coarse to fine

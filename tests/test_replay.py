@@ -14,9 +14,9 @@ from swarmslam.runtime.config import SlamConfig, override
 PROBE = """
 import json, sys
 from swarmslam.replay import replay_run
-from swarmslam.runtime.scan_matcher import align_kernel, global_stage, local_stages
-from swarmslam.runtime.sparse_ldl import ldl_factor
-from swarmslam.runtime.wide_loop_search import nodes_within
+from swarmslam.runtime.matching.scan_matcher import align_kernel, global_stage, local_stages
+from swarmslam.runtime.back_end.sparse_ldl import ldl_factor
+from swarmslam.runtime.back_end.wide_loop_search import nodes_within
 seen = {}
 def before_scan(k, runtime):
     if k == 0:  # the clock has started; nothing of the log has been processed yet
@@ -99,8 +99,8 @@ def test_the_warm_up_compiles_the_inboxs_count_of_a_cut_scan():
     """A scan cut to `sensor.max_points` is counted by two compiled kernels that no warm-up
     scan reaches: the warm-up runs them itself, so the first cut scan of a live run compiles
     nothing (in a fresh process, as a robot starts)."""
-    probe = ("from swarmslam.runtime.fixed_rate import SlamRuntime\n"
-             "from swarmslam.runtime.scan import usable_beams, usable_points\n"
+    probe = ("from swarmslam.runtime.realtime.fixed_rate import SlamRuntime\n"
+             "from swarmslam.runtime.matching.scan import usable_beams, usable_points\n"
              "SlamRuntime().warm_up()\n"
              "print(len(usable_beams.signatures), len(usable_points.signatures))")
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,

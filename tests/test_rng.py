@@ -1,6 +1,6 @@
 import numpy as np
 
-from swarmslam.runtime.rng import normal, randint, seed_state, uniform
+from swarmslam.runtime.matching.rng import normal, randint, seed_state, uniform
 
 
 def draws(seed, n=1000):

@@ -14,8 +14,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from swarmslam.runtime import allocator
-from swarmslam.runtime.back_end import CLOSE
+from swarmslam.runtime.realtime import allocator
+from swarmslam.runtime.back_end.slices import CLOSE
 from swarmslam.runtime.config import (
     MatcherConfig,
     RuntimeConfig,
@@ -24,15 +24,15 @@ from swarmslam.runtime.config import (
     SwarmConfig,
     override,
 )
-from swarmslam.runtime.fixed_rate import SlamRuntime
-from swarmslam.runtime.inbox import ScanInbox
+from swarmslam.runtime.realtime.fixed_rate import SlamRuntime
+from swarmslam.runtime.realtime.inbox import ScanInbox
 from swarmslam.runtime.pose import between, compose
 from swarmslam.runtime.pose_graph import LOOP
-from swarmslam.runtime.scan import PointScan
-from swarmslam.runtime import session
-from swarmslam.runtime.session import SessionError, read_session, write_session
+from swarmslam.runtime.matching.scan import PointScan
+from swarmslam.runtime.realtime import session
+from swarmslam.runtime.realtime.session import SessionError, read_session, write_session
 from swarmslam.runtime.slam import GraphSlam
-from swarmslam.runtime.warm_up import LoopDrive
+from swarmslam.runtime.realtime.warm_up import LoopDrive
 
 from old_sessions import as_early_version_6, as_version_6
 from source_layout import copy_installed_layout
@@ -259,7 +259,7 @@ RUN_AND_DIE = textwrap.dedent(
     import os, signal, sys
     sys.path.insert(0, {tests!r})
     from test_runtime import LOCKSTEP, QUICK, feed, recorded_drive
-    from swarmslam.runtime.fixed_rate import SlamRuntime
+    from swarmslam.runtime.realtime.fixed_rate import SlamRuntime
     angles, records = recorded_drive({steps})
     runtime = SlamRuntime(LOCKSTEP, seed=7)
     feed(runtime, angles, records[:{cut}])
@@ -456,9 +456,9 @@ SOAK_PROBE = textwrap.dedent(
     sys.path.insert(0, {tests!r})
     from test_runtime import QUICK, recorded_drive, with_runtime
     from swarmslam.runtime.config import override
-    from swarmslam.runtime.fixed_rate import SlamRuntime
+    from swarmslam.runtime.realtime.fixed_rate import SlamRuntime
     from swarmslam.runtime.pose import between, compose
-    from swarmslam.runtime.scan import PointScan
+    from swarmslam.runtime.matching.scan import PointScan
 
     angles, records = recorded_drive(80)  # one lap, driven again and again
     config = override(QUICK, {{"capacity.max_nodes": 500, "capacity.max_edges": 2500,
@@ -514,8 +514,8 @@ GROWTH_PROBE = textwrap.dedent(
     sys.path.insert(0, {tests!r})
     from test_runtime import LOCKSTEP, recorded_drive
     from swarmslam.runtime.config import override
-    from swarmslam.runtime.fixed_rate import SlamRuntime
-    from swarmslam.runtime.scan import PointScan
+    from swarmslam.runtime.realtime.fixed_rate import SlamRuntime
+    from swarmslam.runtime.matching.scan import PointScan
 
     angles, records = recorded_drive(80)
     runtime = SlamRuntime(override(LOCKSTEP, {{"capacity.max_nodes": 600,
@@ -569,7 +569,7 @@ KEPT_PROBE = textwrap.dedent(
     sys.path.insert(0, {tests!r})
     from test_runtime import QUICK, with_runtime
     from swarmslam.bench.runtime import rss_kib
-    from swarmslam.runtime.fixed_rate import SlamRuntime
+    from swarmslam.runtime.realtime.fixed_rate import SlamRuntime
 
     def rss_mib():
         return rss_kib()[0] / 1024

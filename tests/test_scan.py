@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from swarmslam.runtime.scan import (PointScan, beam_directions, directions_to_points,
+from swarmslam.runtime.matching.scan import (PointScan, beam_directions, directions_to_points,
                                     ranges_to_points)
 
 

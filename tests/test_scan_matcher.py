@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from swarmslam.runtime.config import SwarmConfig
-from swarmslam.runtime.distance_field import R2, field_lookup
-from swarmslam.runtime.objectives import KERNELS, scan_to_scan_error
+from swarmslam.runtime.matching.distance_field import R2, field_lookup
+from swarmslam.runtime.matching.objectives import KERNELS, scan_to_scan_error
 from swarmslam.runtime.pose import between
-from swarmslam.runtime.scan import PointScan
-from swarmslam.runtime.scan_matcher import MatcherConfig, ScanMatcher
-from swarmslam.runtime.warm_up import pose_after, room_world, scan_at
+from swarmslam.runtime.matching.scan import PointScan
+from swarmslam.runtime.matching.scan_matcher import MatcherConfig, ScanMatcher
+from swarmslam.runtime.realtime.warm_up import pose_after, room_world, scan_at
 
 ANGLES = np.deg2rad(np.arange(-180, 180, 1.0))  # a 360° RPLidar-like scanner
 START = np.array([3.0, 3.0, 0.3])
@@ -257,7 +257,7 @@ def test_a_dense_scan_is_scored_on_a_bounded_share_of_its_points():
     """matcher.global_points / refine_points: a 0.25° scan (1,440 beams) is matched on about
     as many points per stage as a 1° one, as accurately; a scan within the bounds is matched
     exactly as with the bounds off (the stride the configuration sets)."""
-    from swarmslam.runtime.scan_matcher import _stride
+    from swarmslam.runtime.matching.scan_matcher import _stride
 
     assert _stride(180, 2, 96) == 2 and _stride(192, 2, 96) == 2  # a 1° scan: the stride
     assert _stride(361, 2, 96) == 4 and _stride(1440, 2, 96) == 15

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from swarmslam.runtime.text_records import DataFormatError
+from swarmslam.runtime.realtime.text_records import DataFormatError
 from swarmslam_sim.catalog import builtin_worlds, get_world
 from swarmslam_sim.generators import GENERATORS, START_CLEARANCE
 from swarmslam_sim.mapping import world_grid

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 from swarmslam.runtime.config import SlamConfig, override
-from swarmslam.runtime.odometry_gate import _unbeatable, scans_overrule
+from swarmslam.runtime.front_end.odometry_gate import _unbeatable, scans_overrule
 from swarmslam.runtime.pose import between, compose, wrap_angle
 from swarmslam.runtime.pose_graph import LOOP
-from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.matching.scan import PointScan
 from swarmslam.runtime.slam import GraphSlam
-from swarmslam.runtime.warm_up import loop_path, room_world, scan_at
+from swarmslam.runtime.realtime.warm_up import loop_path, room_world, scan_at
 from swarmslam.map_io import read_pgm, write_map
 from swarmslam.metrics import kummerle
 from swarmslam.relations import Relations, RelationsFormatError, read_relations
@@ -483,7 +483,7 @@ def test_a_candidate_whose_match_failed_a_node_ago_is_passed_over_until_the_grap
     """Alg. 7's attempts go to candidates not just tried in vain: a candidate whose match
     failed for node n − 1 is not tried for node n unless a closure changed the graph since;
     the next gated candidate takes its place."""
-    from swarmslam.runtime.back_end import BackEnd
+    from swarmslam.runtime.back_end.slices import BackEnd
 
     attempts = []  # (node, candidate, matched, graph revision)
     align = BackEnd.align_loop

@@ -5,9 +5,9 @@ fixed node 0, repeated loop edges, one pair joined both ways)."""
 import numpy as np
 import pytest
 
-from swarmslam.runtime.graph_optimizer import GaussNewton
+from swarmslam.runtime.back_end.graph_optimizer import GaussNewton
 from swarmslam.runtime.pose_graph import LOOP, PoseGraph
-from swarmslam.runtime.sparse_ldl import SparseLDL
+from swarmslam.runtime.back_end.sparse_ldl import SparseLDL
 
 
 def random_graph(seed, n):

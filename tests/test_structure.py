@@ -85,8 +85,8 @@ FILES, EDGES = project_graph()
 
 
 def test_the_graph_covers_the_project():
-    assert {"swarmslam.runtime.slam", "swarmslam.runtime.front_end", "swarmslam.runtime.back_end",
-            "swarmslam.runtime.config", "swarmslam.hardware.driver", "swarmslam_sim.env",
+    assert {"swarmslam.runtime.slam", "swarmslam.runtime.front_end.tracker",
+            "swarmslam.runtime.back_end.slices", "swarmslam.runtime.config", "swarmslam.hardware.driver", "swarmslam_sim.env",
             "swarmslam.cli", "swarmslam.bench.slam", "swarmslam.worlds"} <= set(FILES)
 
 
@@ -227,7 +227,7 @@ def test_the_distribution_installs_only_swarmslam_names(tmp_path):
     top = {n.split("/")[0] for n in names if not n.split("/")[0].endswith(".dist-info")}
     assert top == {"swarmslam", "swarmslam_sim"}
     for expected in ("swarmslam/cli.py", "swarmslam/bench/slam.py", "swarmslam/runtime/slam.py",
-                     "swarmslam/runtime/optimizers/pso.py", "swarmslam/hardware/driver.py",
+                     "swarmslam/runtime/matching/optimizers/pso.py", "swarmslam/hardware/driver.py",
                      "swarmslam/worlds/office.world", "swarmslam/hardware/99-rplidar.rules",
                      "swarmslam_sim/env.py"):
         assert expected in names
@@ -263,9 +263,55 @@ def test_the_anecdote_rule_finds_what_it_is_for():
 
 def test_only_the_session_module_reads_a_state_with_a_fallback():
     """Each component restores required keys only; what an older session lacks, the
-    migrations in runtime/session.py supply."""
+    migrations in runtime/realtime/session.py supply."""
     found = [f"{path.relative_to(ROOT)}:{k}" for path in runtime_sources()
              if path.name != "session.py"
              for k, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
              if re.search(r"\bstate\.get\(|\" in state\b", line)]
     assert not found, found
+
+
+# The runtime's rooms (README, "Layout") and what each may import from the runtime: the
+# matching is the ground floor, the front and back ends never meet but in the glue
+# (``slam.py``), localization tracks as the front end does, and the fixed-rate runtime sits on
+# top. "core" is the top-level modules the rooms share (configuration, poses, the pose graph,
+# the node scans, the map); they stand on the matching alone.
+ROOMS = ("matching", "front_end", "back_end", "localization", "realtime")
+ROOM_ALLOWED = {
+    "matching": {"matching", "core"},
+    "front_end": {"front_end", "matching", "core"},
+    "back_end": {"back_end", "matching", "core"},
+    "localization": {"localization", "front_end", "matching", "core"},
+    "core": {"core", "matching"},
+}
+GLUE = {"swarmslam.runtime", "swarmslam.runtime.slam"}
+
+
+def room_of(module: str) -> str:
+    parts = module.split(".")
+    return parts[2] if len(parts) > 2 and parts[2] in ROOMS else "core"
+
+
+def test_every_runtime_module_lives_in_a_room_or_is_the_core():
+    core = sorted(name for name in FILES if folder_of(name) == "runtime" and name not in GLUE
+                  and room_of(name) == "core")
+    assert core == [f"swarmslam.runtime.{m}" for m in (
+        "config", "node_scans", "occupancy_grid", "pose", "pose_graph", "resources",
+        "step_result", "tallies")]
+    assert {room_of(name) for name in FILES if folder_of(name) == "runtime"} == {*ROOMS, "core"}
+
+
+def test_each_room_of_the_runtime_imports_only_what_it_may():
+    wrong = [f"{src}:{line} imports {dst}" for src, targets in EDGES.items()
+             if folder_of(src) == "runtime" and src not in GLUE
+             and room_of(src) in ROOM_ALLOWED
+             for dst, line, _ in targets
+             if folder_of(dst) == "runtime" and dst not in GLUE
+             and room_of(dst) not in ROOM_ALLOWED[room_of(src)]]
+    assert not wrong, "\n".join(wrong)
+
+
+def test_the_room_rule_finds_a_front_end_that_reaches_into_the_back_end():
+    assert room_of("swarmslam.runtime.front_end.tracker") == "front_end"
+    assert room_of("swarmslam.runtime.back_end.loop_trial") not in ROOM_ALLOWED["front_end"]
+    assert room_of("swarmslam.runtime.pose_graph") in ROOM_ALLOWED["front_end"]

@@ -1,5 +1,5 @@
 """A rotating scanner's sweep: each point turned to the robot's heading at the scan's stamp
-(runtime/sweep_motion.py, docs/method.md §6.1 "The sweep")."""
+(runtime/matching/sweep_motion.py, docs/method.md §6.1 "The sweep")."""
 
 import math
 
@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 
 from swarmslam.runtime.config import SensorConfig, SlamConfig, override
-from swarmslam.runtime.localization import TRACKING, Localizer
-from swarmslam.runtime.map_tracking import SavedMap
+from swarmslam.runtime.localization.localizer import TRACKING, Localizer
+from swarmslam.runtime.localization.map_tracking import SavedMap
 from swarmslam.runtime.node_scans import NodeScans
 from swarmslam.runtime.pose import between, wrap_angle
-from swarmslam.runtime.scan import PointScan
+from swarmslam.runtime.matching.scan import PointScan
 from swarmslam.runtime.slam import GraphSlam
-from swarmslam.runtime.sweep_motion import SweepMotion, undistort
-from swarmslam.runtime.warm_up import room_world, scan_at
+from swarmslam.runtime.matching.sweep_motion import SweepMotion, undistort
+from swarmslam.runtime.realtime.warm_up import room_world, scan_at
 
 
 def _as_seen(points, places, seconds, stamp_place, w, w_last=None):

@@ -21,8 +21,8 @@ from mcap.reader import make_reader
 import swarmslam.rerun_view as rerun_view
 import swarmslam.run_view as run_view
 from swarmslam.runtime.config import SensorConfig
-from swarmslam.runtime.scan import PointScan
-from swarmslam.runtime.writers import write_bytes_atomic
+from swarmslam.runtime.matching.scan import PointScan
+from swarmslam.runtime.realtime.writers import write_bytes_atomic
 from swarmslam.bench.slam import plot_run
 from swarmslam.carmen import read_carmen
 from swarmslam.cli import main
@@ -242,7 +242,7 @@ def test_a_redraw_is_handed_over_whole_after_its_cells_are_converted_a_few_rows_
     """The painter draws a few node scans per call, then converts a few rows of cells per
     call; the finished map equals the whole grid converted at once (the map file's values,
     the ROS percentages), and a graph that did not change is not redrawn."""
-    from swarmslam.runtime.warm_up import room_world, scan_at
+    from swarmslam.runtime.realtime.warm_up import room_world, scan_at
     from swarmslam.map_io import trinary_image
     from swarmslam.map_painter import MapPainter, occupancy_percent
 

@@ -1,4 +1,4 @@
-"""The wide loop search (swarmslam.runtime.wide_loop_search): a node returning to mapped ground after a
+"""The wide loop search (swarmslam.runtime.back_end.wide_loop_search): a node returning to mapped ground after a
 long drift is placed by the search over the old nodes' map, and refused where a corridor makes
 the place ambiguous."""
 
@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 
 from swarmslam.runtime.config import SlamConfig, override
-from swarmslam.runtime.graph_optimizer import GaussNewton
-from swarmslam.runtime.loop_closure import LoopCloser
+from swarmslam.runtime.back_end.graph_optimizer import GaussNewton
+from swarmslam.runtime.back_end.loop_closure import LoopCloser
 from swarmslam.runtime.node_scans import NodeScans
-from swarmslam.runtime.place_search import clear_distances, pool_pyramid, splat_scans
+from swarmslam.runtime.matching.place_search import clear_distances, pool_pyramid, splat_scans
 from swarmslam.runtime.pose import compose, wrap_angle
 from swarmslam.runtime.pose_graph import LOOP, PoseGraph
-from swarmslam.runtime.scan import PointScan
-from swarmslam.runtime.warm_up import room_world, scan_at
-from swarmslam.runtime.wide_loop_search import WideLoopSearch, open_window
+from swarmslam.runtime.matching.scan import PointScan
+from swarmslam.runtime.realtime.warm_up import room_world, scan_at
+from swarmslam.runtime.back_end.wide_loop_search import WideLoopSearch, open_window
 
 ANGLES = np.linspace(-np.pi, np.pi, 360, endpoint=False)
 # queries of two node scans (a search's separate second look is two or more nodes back), on

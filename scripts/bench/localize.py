@@ -33,12 +33,12 @@ from swarmslam.runtime.config import (
     session_settings,
     to_toml,
 )
-from swarmslam.runtime.fixed_rate import SlamRuntime
-from swarmslam.runtime.localization import TRACKING
+from swarmslam.runtime.realtime.fixed_rate import SlamRuntime
+from swarmslam.runtime.localization.localizer import TRACKING
 from swarmslam.runtime.pose import between
-from swarmslam.runtime.relocalization import Ambiguous, Located
-from swarmslam.runtime.scan import PointScan
-from swarmslam.runtime.writers import write_text_atomic
+from swarmslam.runtime.localization.relocalization import Ambiguous, Located
+from swarmslam.runtime.matching.scan import PointScan
+from swarmslam.runtime.realtime.writers import write_text_atomic
 from swarmslam.bench.slam import LOGS
 from swarmslam.carmen import read_carmen
 from swarmslam.datasets import require

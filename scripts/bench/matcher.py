@@ -18,8 +18,8 @@ import numpy as np
 
 from swarmslam.runtime.config import SensorConfig
 from swarmslam.runtime.pose import between
-from swarmslam.runtime.scan import PointScan
-from swarmslam.runtime.scan_matcher import MatcherConfig, ScanMatcher
+from swarmslam.runtime.matching.scan import PointScan
+from swarmslam.runtime.matching.scan_matcher import MatcherConfig, ScanMatcher
 from swarmslam.carmen import read_carmen
 from swarmslam.datasets import require
 from swarmslam.icp import icp

@@ -9,7 +9,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from swarmslam.runtime.graph_optimizer import GaussNewton
+from swarmslam.runtime.back_end.graph_optimizer import GaussNewton
 from swarmslam.datasets import require
 from swarmslam.g2o import read_g2o
 from swarmslam.plots import bars, require_matplotlib

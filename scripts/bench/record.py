@@ -25,7 +25,7 @@ import llvmlite.binding
 import numba
 import numpy as np
 
-from swarmslam.runtime.writers import write_json_atomic
+from swarmslam.runtime.realtime.writers import write_json_atomic
 
 SAMPLE_SECONDS = 5.0  # how often other processes are looked for
 # Command lines that mark another benchmark or test run (heavy, CPU-bound work).

@@ -18,7 +18,7 @@ from pathlib import Path
 from swarmslam.bench.localize import MEDIAN_MS_TARGET as LOCALIZE_MEDIAN_MS
 from swarmslam.bench.runtime import TARGETS as RUNTIME_TARGETS
 from swarmslam.bench.slam import PUBLISHED
-from swarmslam.runtime.writers import write_text_atomic
+from swarmslam.runtime.realtime.writers import write_text_atomic
 
 BEGIN = "<!-- results:begin (swarmslam bench report writes this block) -->"
 END = "<!-- results:end -->"

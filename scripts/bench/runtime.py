@@ -13,7 +13,7 @@ budgeted schedule unless said):
    the log's pauses (gaps over :data:`LOG_PAUSE`) cut out.
 
 ``--soak MINUTES`` instead drives the runtime for that long on simulated scans
-(:class:`swarmslam.runtime.warm_up.LoopDrive`), sampling RSS and traced memory each minute.
+(:class:`swarmslam.runtime.realtime.warm_up.LoopDrive`), sampling RSS and traced memory each minute.
 Targets (:data:`TARGETS`): 0 misses, p99 ≤ 20 ms, RSS growth ≤ 1 MiB; 0 traced bytes per tick.
 """
 
@@ -29,9 +29,9 @@ from pathlib import Path
 import numpy as np
 
 from swarmslam.runtime.config import SlamConfig, override
-from swarmslam.runtime.fixed_rate import SlamRuntime
-from swarmslam.runtime.scan import PointScan
-from swarmslam.runtime.warm_up import LoopDrive
+from swarmslam.runtime.realtime.fixed_rate import SlamRuntime
+from swarmslam.runtime.matching.scan import PointScan
+from swarmslam.runtime.realtime.warm_up import LoopDrive
 from swarmslam.carmen import read_carmen
 from swarmslam.datasets import require
 from swarmslam.metrics import kummerle
