@@ -17,7 +17,7 @@ from swarmslam.runtime.slam import GraphSlam
 from swarmslam.runtime.realtime.warm_up import loop_path, room_world, scan_at
 
 from old_sessions import as_version_6
-from test_slam import ANGLES, run
+from slam_scenes import ANGLES, run
 
 
 def survey(n=3000, per_node=3, match=0.004, node_noise=0.0, odometry=0.002, seed=0):
