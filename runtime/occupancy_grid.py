@@ -1,7 +1,7 @@
 """The global occupancy grid (Alg. 4's Generate_Global_Map): log-odds over a fixed-capacity
 grid, rays traced from each scan's optimised pose (Bresenham), in compiled code.
 
-Output convention is ROS map_server's (see :mod:`swarmslam.map_io`): probability of occupancy
+Output convention is ROS map_server's (see :mod:`swarmslam.formats.map_io`): probability of occupancy
 from the log-odds, thresholds 0.65 / 0.196.
 """
 

@@ -26,7 +26,7 @@ from swarmslam.runtime.config import (
 )
 from swarmslam.runtime.realtime.inbox import skipped_text
 from swarmslam.runtime.realtime.writers import write_bytes_atomic
-from swarmslam.run_view import RunWatch
+from swarmslam.view.run_view import RunWatch
 
 
 def _bench_matcher(args) -> int:
@@ -291,7 +291,7 @@ def _config_fields(args) -> int:
 
 
 def _relations_audit(args) -> int:
-    from swarmslam.relations_audit import audit_command
+    from swarmslam.evaluation.relations_audit import audit_command
 
     if not 0 < args.min_gain <= 1:
         raise ValueError(f"--min-gain must be in (0, 1], got {args.min_gain}")
@@ -425,7 +425,7 @@ def _bag_options(parser) -> None:
 
 
 def _bag(args):
-    from swarmslam.logs import BagOptions
+    from swarmslam.formats.logs import BagOptions
 
     return BagOptions(args.scan_topic, args.odom_topic, args.odom_frame, args.base_frame)
 

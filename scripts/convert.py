@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from swarmslam.runtime.realtime.writers import write_bytes_atomic
-from swarmslam.bags import format_of, write_bag
-from swarmslam.carmen import flaser_angles, flaser_line, odom_line, robotlaser1_line
-from swarmslam.logs import BagOptions, read_log
+from swarmslam.formats.bags import format_of, write_bag
+from swarmslam.formats.carmen import flaser_angles, flaser_line, odom_line, robotlaser1_line
+from swarmslam.formats.logs import BagOptions, read_log
 
 CARMEN_SUFFIXES = (".clf", ".log", ".gz", ".txt")
 

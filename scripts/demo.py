@@ -18,11 +18,11 @@ import numpy as np
 
 from swarmslam.runtime.config import SlamConfig
 from swarmslam.runtime.realtime.writers import write_json_atomic
-from swarmslam.map_io import write_map
-from swarmslam.png import write_png
+from swarmslam.formats.map_io import write_map
+from swarmslam.formats.png import write_png
 from swarmslam.progress import Progress
-from swarmslam.run_view import frame_of
-from swarmslam.tum import write_tum
+from swarmslam.view.run_view import frame_of
+from swarmslam.formats.tum import write_tum
 from swarmslam_sim.exploration import FrontierExplorer
 
 
@@ -30,7 +30,7 @@ def run_exploration_demo(out_dir, world: str = "office", optimizer: str | None =
                          seed: int = 0, max_steps: int = 1500, coverage_goal: float = 0.9,
                          echo=print, config: SlamConfig | None = None, watch=None) -> dict:
     """``config``: the SLAM's configuration (default: the simulator's preset for the LiDAR);
-    ``optimizer`` overrides its swarm method. ``watch``: a :class:`swarmslam.run_view.RunWatch`
+    ``optimizer`` overrides its swarm method. ``watch``: a :class:`swarmslam.view.run_view.RunWatch`
     shown every step, with the true pose (closed at the end)."""
     try:
         return _explore(out_dir, world, optimizer, seed, max_steps, coverage_goal, echo, config,

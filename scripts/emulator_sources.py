@@ -17,7 +17,7 @@ import gymnasium as gym
 import numpy as np
 
 from swarmslam.hardware.sources import robot_angles
-from swarmslam.carmen import read_carmen
+from swarmslam.formats.carmen import read_carmen
 from swarmslam_sim.exploration import FrontierExplorer
 from swarmslam_sim.raycast import cast_scan
 

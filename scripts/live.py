@@ -21,10 +21,10 @@ from swarmslam.hardware.models import model as get_model
 from swarmslam.runtime.config import SlamConfig, override, preset
 from swarmslam.runtime.realtime.fixed_rate import SlamRuntime
 from swarmslam.runtime.realtime.writers import write_json_atomic
-from swarmslam.bags import BagRecorder
+from swarmslam.formats.bags import BagRecorder
 from swarmslam.outputs import check_writable, clean_stale, output_set, write_results
-from swarmslam.run_view import frame_of
-from swarmslam.tum import write_tum
+from swarmslam.view.run_view import frame_of
+from swarmslam.formats.tum import write_tum
 
 
 def slam_config_for(model_name: str, rate_hz: float | None = None) -> SlamConfig:
@@ -45,10 +45,10 @@ def run_live(port: str, model: str = "a1", mode: str = "typical", out_dir="swarm
     its map (found first); ``localize``: a session to localize in, never changed. Both take
     the session's configuration, with ``session_changes``
     (:func:`swarmslam.runtime.config.session_changes`: search and tracking only).
-    ``watch``: a :class:`swarmslam.run_view.RunWatch` shown after every tick that took a scan.
+    ``watch``: a :class:`swarmslam.view.run_view.RunWatch` shown after every tick that took a scan.
     ``baud``: a rate to switch the link to after connecting (where the model allows).
     ``bag``: a ROS bag to record every scan to (its format from its name,
-    :mod:`swarmslam.bags`), written whole when the run ends."""
+    :mod:`swarmslam.formats.bags`), written whole when the run ends."""
     out = Path(out_dir)
     check_writable(out)
     clean_stale(out)

@@ -19,10 +19,10 @@ from swarmslam.runtime.matching.scan import PointScan
 from swarmslam.runtime.matching.scan_matcher import MatcherConfig, ScanMatcher
 from swarmslam.runtime.realtime.warm_up import loop_path, room_world, scan_at
 from swarmslam.runtime.realtime.writers import write_json_atomic
-from swarmslam.metrics import relative_errors
-from swarmslam.png import write_png
+from swarmslam.evaluation.metrics import relative_errors
+from swarmslam.formats.png import write_png
 from swarmslam.progress import Progress
-from swarmslam.tum import write_tum
+from swarmslam.formats.tum import write_tum
 from swarmslam_sim.canvas import Canvas
 
 ANGLES = np.deg2rad(np.arange(-180.0, 180.0, 1.0))

@@ -20,9 +20,9 @@ import time
 from pathlib import Path
 
 from swarmslam.runtime.slam import GraphSlam
-from swarmslam.g2o import write_g2o
-from swarmslam.map_io import write_map
-from swarmslam.tum import write_tum
+from swarmslam.formats.g2o import write_g2o
+from swarmslam.formats.map_io import write_map
+from swarmslam.formats.tum import write_tum
 
 STALE_SECONDS = 300.0  # a temp file untouched this long lost its writer
 RESULT_FILES = ("map.pgm", "map.yaml", "map.png", "trajectory.tum", "graph.g2o")

@@ -20,14 +20,14 @@ from swarmslam.runtime.realtime.fixed_rate import SlamRuntime
 from swarmslam.runtime.pose import compose
 from swarmslam.runtime.matching.scan import PointScan, ranges_to_points
 from swarmslam.runtime.realtime.writers import write_json_atomic
-from swarmslam.logs import BagOptions, read_log
-from swarmslam.metrics import kummerle, match_relations
+from swarmslam.formats.logs import BagOptions, read_log
+from swarmslam.evaluation.metrics import kummerle, match_relations
 from swarmslam.outputs import check_writable, output_set, write_results
-from swarmslam.odometry_check import odometry_seen
+from swarmslam.evaluation.odometry_check import odometry_seen
 from swarmslam.progress import Progress
-from swarmslam.relations import read_relations
-from swarmslam.run_view import frame_of
-from swarmslam.tum import write_tum
+from swarmslam.formats.relations import read_relations
+from swarmslam.view.run_view import frame_of
+from swarmslam.formats.tum import write_tum
 
 
 def _largest(section, name: str):
@@ -184,7 +184,7 @@ def replay(log_path, relations_path=None, optimizer: str | None = None, odometry
     trajectory and ``localization.json``). ``resume``: a session to extend from wherever the
     log starts in it (multi-session mapping). Both take their configuration from the session,
     with ``session_changes`` (:func:`swarmslam.runtime.config.session_changes`: search and tracking only).
-    ``start``: the first scan replayed. ``watch``: a :class:`swarmslam.run_view.RunWatch` shown
+    ``start``: the first scan replayed. ``watch``: a :class:`swarmslam.view.run_view.RunWatch` shown
     every tick (closed at the end)."""
     return replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, seed,
                       config, label, schedule, localize=localize, resume=resume,

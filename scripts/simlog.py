@@ -19,9 +19,9 @@ import numpy as np
 
 from swarmslam.runtime.pose import between
 from swarmslam.runtime.realtime.writers import write_bytes_atomic, write_text_atomic
-from swarmslam.carmen import flaser_line, odom_line, robotlaser1_line
-from swarmslam.relations import relations_text
-from swarmslam.tum import tum_lines
+from swarmslam.formats.carmen import flaser_line, odom_line, robotlaser1_line
+from swarmslam.formats.relations import relations_text
+from swarmslam.formats.tum import tum_lines
 from swarmslam_sim.survey import Effects, Survey, Turning, run_survey, site
 from swarmslam_sim.world import save_world
 

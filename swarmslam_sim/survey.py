@@ -26,7 +26,7 @@ from swarmslam_sim.world import World
 # Scanners of the suite: the logs it stands in for carry 180° SICK lasers at 1° and 0.5°
 # reaching 80 m; small robots carry 360° RPLidars reaching 12 m. "sick-1-8m" is a SICK in its
 # millimetre mode, reaching 8.183 m and reading that for a beam without a return: a FLASER
-# log of it says so only by that recurring value (swarmslam.carmen.flaser_no_return).
+# log of it says so only by that recurring value (swarmslam.formats.carmen.flaser_no_return).
 SCANNERS = {
     "sick-1": LidarConfig(181, math.pi, 0.05, 80.0, 10.0, 0.01, 0.0),
     "sick-0.5": LidarConfig(361, math.pi, 0.05, 80.0, 10.0, 0.01, 0.0),

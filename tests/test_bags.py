@@ -1,4 +1,4 @@
-"""ROS bags in and out (swarmslam.bags, swarmslam convert, replay BAG, lidar --bag): written
+"""ROS bags in and out (swarmslam.formats.bags, swarmslam convert, replay BAG, lidar --bag): written
 in the test, read back to what the CARMEN reader gives, with LaserScan's whole contract."""
 
 import json
@@ -15,11 +15,11 @@ from scipy.spatial import cKDTree
 from swarmslam.runtime.config import SlamConfig
 from swarmslam.runtime.pose import between, compose
 from swarmslam.runtime.realtime.warm_up import loop_path, room_world, scan_at
-from swarmslam.bags import BagError, BagWriter, read_bag, write_bag
-from swarmslam.carmen import flaser_angles, read_carmen
+from swarmslam.formats.bags import BagError, BagWriter, read_bag, write_bag
+from swarmslam.formats.carmen import flaser_angles, read_carmen
 from swarmslam.cli import main
 from swarmslam.replay import bag_sweep, replay_run
-from swarmslam.tum import read_tum
+from swarmslam.formats.tum import read_tum
 
 from test_hostile_inputs import log_lines
 

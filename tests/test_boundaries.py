@@ -22,9 +22,9 @@ from swarmslam.runtime.realtime.inbox import ScanInbox
 from swarmslam.runtime.occupancy_grid import OccupancyGrid, integrate_scan
 from swarmslam.runtime.resources import check_memory
 from swarmslam.runtime.realtime.warm_up import loop_path, room_world, scan_at
-from swarmslam.carmen import flaser_angles, read_carmen
+from swarmslam.formats.carmen import flaser_angles, read_carmen
 from swarmslam.cli import main
-from swarmslam.tum import read_tum
+from swarmslam.formats.tum import read_tum
 
 from source_layout import copy_installed_layout
 from test_hostile_inputs import edit, log_lines, strict_json

@@ -6,7 +6,7 @@ import pytest
 
 from swarmslam.runtime.config import SensorConfig, SlamConfig, override
 from swarmslam.runtime.matching.scan import PointScan
-from swarmslam.carmen import (
+from swarmslam.formats.carmen import (
     CarmenFormatError,
     flaser_angles,
     flaser_no_return,

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from swarmslam.runtime.realtime.warm_up import loop_path, room_world, scan_at
-from swarmslam.carmen import flaser_angles
+from swarmslam.formats.carmen import flaser_angles
 from swarmslam.cli import main
-from swarmslam.tum import read_tum
+from swarmslam.formats.tum import read_tum
 
 
 def write_keyframe_log(path, steps=8, seed=0):

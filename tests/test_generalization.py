@@ -27,8 +27,8 @@ from swarmslam.bench.generalization import (
     select,
     truth_of,
 )
-from swarmslam.carmen import read_carmen
-from swarmslam.relations import read_relations
+from swarmslam.formats.carmen import read_carmen
+from swarmslam.formats.relations import read_relations
 from swarmslam.simlog import log_text, sample_relations, write_simlog
 from survey_slam import slam_over
 from swarmslam_sim.survey import Site, run_survey, site

@@ -19,7 +19,7 @@ from swarmslam.runtime.realtime.fixed_rate import SlamRuntime
 from swarmslam.runtime.realtime.session import SessionError, read_session, write_session
 from swarmslam.runtime.realtime.text_records import DataFormatError
 from swarmslam.runtime.realtime.warm_up import loop_path, room_world, scan_at
-from swarmslam.carmen import flaser_angles, read_carmen
+from swarmslam.formats.carmen import flaser_angles, read_carmen
 from swarmslam.cli import main
 from swarmslam.outputs import _staging, clean_stale, output_set
 
@@ -163,13 +163,13 @@ def test_a_binary_file_is_refused_with_its_name(tmp_path, capsys, kind):
         with pytest.raises(DataFormatError, match="not utf-8 text"):
             load_world(blob)
     else:
-        from swarmslam.g2o import read_g2o
+        from swarmslam.formats.g2o import read_g2o
         with pytest.raises(DataFormatError, match="not utf-8 text"):
             read_g2o(blob)
 
 
 def test_a_fractional_g2o_vertex_id_is_refused(tmp_path):
-    from swarmslam.g2o import G2oFormatError, read_g2o
+    from swarmslam.formats.g2o import G2oFormatError, read_g2o
     g2o = tmp_path / "frac.g2o"
     g2o.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1.5 1 0 0\nEDGE_SE2 0 1.5 1 0 0 1 0 0 1 0 1\n")
     with pytest.raises(G2oFormatError, match="frac.g2o:2: id: vertex ids are integers"):

@@ -12,7 +12,7 @@ from swarmslam.hardware.emulator import VirtualRPLidar
 from swarmslam.runtime.pose import between
 from swarmslam.cli import main
 from swarmslam.emulator_sources import WorldSource
-from swarmslam.tum import read_tum
+from swarmslam.formats.tum import read_tum
 
 
 def test_live_slam_from_the_emulator_tracks_the_true_pose(tmp_path, capsys):

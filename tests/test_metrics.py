@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from swarmslam.metrics import kummerle
-from swarmslam.relations import Relations, RelationsFormatError, read_relations
+from swarmslam.evaluation.metrics import kummerle
+from swarmslam.formats.relations import Relations, RelationsFormatError, read_relations
 from swarmslam.runtime.pose import between, compose
 
 

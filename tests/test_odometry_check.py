@@ -1,13 +1,13 @@
-"""What a run shows of its odometry (scripts/odometry_check.py)."""
+"""What a run shows of its odometry (scripts/evaluation/odometry_check.py)."""
 
 import doctest
 
 import numpy as np
 import pytest
 
-from swarmslam import odometry_check
+from swarmslam.evaluation import odometry_check
 from swarmslam.cli import main
-from swarmslam.odometry_check import odometry_seen, translation_scale
+from swarmslam.evaluation.odometry_check import odometry_seen, translation_scale
 from swarmslam.replay import replay_run
 from swarmslam.runtime.front_end.between_scans import NEW_READING, NO_READING, STALE_READING
 from swarmslam.runtime.config import SlamConfig

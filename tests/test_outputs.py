@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from swarmslam.runtime.realtime import writers
-from swarmslam.png import encode_png
-from swarmslam.tum import read_tum, write_tum
+from swarmslam.formats.png import encode_png
+from swarmslam.formats.tum import read_tum, write_tum
 from swarmslam_sim.canvas import Canvas
 
 

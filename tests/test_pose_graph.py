@@ -6,7 +6,7 @@ import pytest
 from swarmslam.runtime.back_end.graph_optimizer import GaussNewton
 from swarmslam.runtime.pose import between, compose
 from swarmslam.runtime.pose_graph import LOOP, CapacityError, PoseGraph, information_from_sigma
-from swarmslam.g2o import G2oFormatError, read_g2o, write_g2o
+from swarmslam.formats.g2o import G2oFormatError, read_g2o, write_g2o
 
 
 def square_loop(n_side=10, step=0.5):

@@ -7,14 +7,14 @@ import json
 import numpy as np
 import pytest
 
-import swarmslam.relations_audit as relations_audit
+import swarmslam.evaluation.relations_audit as relations_audit
 from swarmslam.runtime.pose import between, compose
 from swarmslam.runtime.realtime.warm_up import loop_path, room_world, scan_at
-from swarmslam.carmen import flaser_angles
+from swarmslam.formats.carmen import flaser_angles
 from swarmslam.cli import main
-from swarmslam.plots import gross_failures_figure
-from swarmslam.relations import Relations, relations_text
-from swarmslam.tum import write_tum
+from swarmslam.view.plots import gross_failures_figure
+from swarmslam.formats.relations import Relations, relations_text
+from swarmslam.formats.tum import write_tum
 
 
 def write_room_log(path, steps=12, seed=1):

@@ -1,15 +1,15 @@
-"""On whose clock a relations file's headings are (scripts/relations_clock.py)."""
+"""On whose clock a relations file's headings are (scripts/evaluation/relations_clock.py)."""
 
 import doctest
 
 import numpy as np
 import pytest
 
-import swarmslam.relations_clock as relations_clock
+import swarmslam.evaluation.relations_clock as relations_clock
 from swarmslam.runtime.pose import between
-from swarmslam.relations import Relations
-from swarmslam.metrics import nearest_stamps
-from swarmslam.relations_clock import heading_slope, reference_clock, turn_rates
+from swarmslam.formats.relations import Relations
+from swarmslam.evaluation.metrics import nearest_stamps
+from swarmslam.evaluation.relations_clock import heading_slope, reference_clock, turn_rates
 from swarmslam_sim.survey import OdometryModel, drive, integrate_odometry, site
 
 LATENCY = 0.04  # s

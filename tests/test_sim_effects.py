@@ -11,8 +11,8 @@ import pytest
 from swarmslam.runtime.config import SlamConfig, override
 from swarmslam.bench.generalization import parse_case
 from swarmslam.cli import main
-from swarmslam.metrics import kummerle
-from swarmslam.relations import read_relations
+from swarmslam.evaluation.metrics import kummerle
+from swarmslam.formats.relations import read_relations
 from swarmslam.replay import replay_run
 from swarmslam_sim.lidar import Lidar, LidarConfig
 from swarmslam_sim.survey import (

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from swarmslam.map_io import read_pgm, write_map
+from swarmslam.formats.map_io import read_pgm, write_map
 from swarmslam.runtime.config import SlamConfig, override
 from swarmslam.runtime.matching.scan import PointScan
 from swarmslam.runtime.pose import between, compose

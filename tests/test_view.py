@@ -18,17 +18,17 @@ import rerun as rr
 from gymnasium.wrappers import RecordVideo
 from mcap.reader import make_reader
 
-import swarmslam.rerun_view as rerun_view
-import swarmslam.run_view as run_view
+import swarmslam.view.rerun_view as rerun_view
+import swarmslam.view.run_view as run_view
 from swarmslam.runtime.config import SensorConfig
 from swarmslam.runtime.matching.scan import PointScan
 from swarmslam.runtime.realtime.writers import write_bytes_atomic
 from swarmslam.bench.slam import plot_run
-from swarmslam.carmen import read_carmen
+from swarmslam.formats.carmen import read_carmen
 from swarmslam.cli import main
-from swarmslam.mcap_recording import laser_ranges
-from swarmslam.plots import bars, latency_histograms
-from swarmslam.relations import read_relations
+from swarmslam.view.mcap_recording import laser_ranges
+from swarmslam.view.plots import bars, latency_histograms
+from swarmslam.formats.relations import read_relations
 from swarmslam.replay import replay_run, robot_frame_scan
 
 
@@ -243,8 +243,8 @@ def test_a_redraw_is_handed_over_whole_after_its_cells_are_converted_a_few_rows_
     call; the finished map equals the whole grid converted at once (the map file's values,
     the ROS percentages), and a graph that did not change is not redrawn."""
     from swarmslam.runtime.realtime.warm_up import room_world, scan_at
-    from swarmslam.map_io import trinary_image
-    from swarmslam.map_painter import MapPainter, occupancy_percent
+    from swarmslam.formats.map_io import trinary_image
+    from swarmslam.view.map_painter import MapPainter, occupancy_percent
 
     class Graph:  # what the painter reads of a SLAM run
         def __init__(self, poses, nodes):

@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from swarmslam.bags import FORMATS
+from swarmslam.formats.bags import FORMATS
 from swarmslam.bench.record import save_results
 from swarmslam.bench.slam import LOGS
 from swarmslam.convert import convert
 from swarmslam.datasets import require
-from swarmslam.logs import read_log
+from swarmslam.formats.logs import read_log
 from swarmslam.replay import replay_run
 
 TARGET_SHARE = 0.10  # a bag's read, as a share of the replay's wall time

@@ -18,7 +18,7 @@ import time
 
 import gymnasium as gym
 
-from swarmslam.plots import bars, require_matplotlib
+from swarmslam.view.plots import bars, require_matplotlib
 from swarmslam.bench.record import save_results
 
 TARGETS = {"steps_per_s_without_slam": 8000, "steps_per_s_with_slam": 400}

@@ -27,11 +27,11 @@ import numpy as np
 from swarmslam.runtime.config import SlamConfig, override
 from swarmslam.runtime.pose import between
 from swarmslam.runtime.pose_graph import LOOP
-from swarmslam.metrics import nearest_stamps
-from swarmslam.plots import bars, require_matplotlib
+from swarmslam.evaluation.metrics import nearest_stamps
+from swarmslam.view.plots import bars, require_matplotlib
 from swarmslam.replay import replay_run
 from swarmslam.simlog import write_simlog
-from swarmslam.tum import read_tum
+from swarmslam.formats.tum import read_tum
 from swarmslam_sim.survey import EFFECTS, ODOMETRY, SCANNERS, SITES, rotates
 from swarmslam.bench.record import save_results
 

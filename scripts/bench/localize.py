@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-import swarmslam.carmen
+import swarmslam.formats.carmen
 import swarmslam.replay
 import swarmslam.runtime
 from swarmslam.runtime.config import (
@@ -40,9 +40,9 @@ from swarmslam.runtime.localization.relocalization import Ambiguous, Located
 from swarmslam.runtime.matching.scan import PointScan
 from swarmslam.runtime.realtime.writers import write_text_atomic
 from swarmslam.bench.slam import LOGS
-from swarmslam.carmen import read_carmen
+from swarmslam.formats.carmen import read_carmen
 from swarmslam.datasets import require
-from swarmslam.plots import bars, latency_histograms, require_matplotlib
+from swarmslam.view.plots import bars, latency_histograms, require_matplotlib
 from swarmslam.progress import Progress
 from swarmslam.replay import replay, robot_frame_scan
 from swarmslam.bench.record import save_results
@@ -77,7 +77,7 @@ def mapping_code() -> str:
     default, so the defaults alone cannot tell a map made before the field existed."""
     digest = hashlib.sha256()
     core = Path(swarmslam.runtime.__file__).parent
-    sources = sorted(core.rglob("*.py")) + [Path(swarmslam.carmen.__file__),
+    sources = sorted(core.rglob("*.py")) + [Path(swarmslam.formats.carmen.__file__),
                                             Path(swarmslam.replay.__file__)]
     for path in sources:
         digest.update(path.name.encode() + b"\0" + path.read_bytes())

@@ -20,11 +20,11 @@ from swarmslam.runtime.config import SensorConfig
 from swarmslam.runtime.pose import between
 from swarmslam.runtime.matching.scan import PointScan
 from swarmslam.runtime.matching.scan_matcher import MatcherConfig, ScanMatcher
-from swarmslam.carmen import read_carmen
+from swarmslam.formats.carmen import read_carmen
 from swarmslam.datasets import require
-from swarmslam.icp import icp
-from swarmslam.metrics import is_failure, pair_errors, relative_errors
-from swarmslam.plots import matcher_errors, require_matplotlib
+from swarmslam.evaluation.icp import icp
+from swarmslam.evaluation.metrics import is_failure, pair_errors, relative_errors
+from swarmslam.view.plots import matcher_errors, require_matplotlib
 from swarmslam.progress import Progress
 from swarmslam.bench.record import save_results
 from swarmslam.replay import robot_frame_scan

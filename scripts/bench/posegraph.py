@@ -11,8 +11,8 @@ from pathlib import Path
 
 from swarmslam.runtime.back_end.graph_optimizer import GaussNewton
 from swarmslam.datasets import require
-from swarmslam.g2o import read_g2o
-from swarmslam.plots import bars, require_matplotlib
+from swarmslam.formats.g2o import read_g2o
+from swarmslam.view.plots import bars, require_matplotlib
 from swarmslam.bench.record import save_results
 
 GRAPHS = {

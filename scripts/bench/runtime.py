@@ -32,14 +32,14 @@ from swarmslam.runtime.config import SlamConfig, override
 from swarmslam.runtime.realtime.fixed_rate import SlamRuntime
 from swarmslam.runtime.matching.scan import PointScan
 from swarmslam.runtime.realtime.warm_up import LoopDrive
-from swarmslam.carmen import read_carmen
+from swarmslam.formats.carmen import read_carmen
 from swarmslam.datasets import require
-from swarmslam.metrics import kummerle
-from swarmslam.plots import latency_histograms, lines_plot, require_matplotlib
+from swarmslam.evaluation.metrics import kummerle
+from swarmslam.view.plots import latency_histograms, lines_plot, require_matplotlib
 from swarmslam.progress import Progress
-from swarmslam.relations import read_relations
+from swarmslam.formats.relations import read_relations
 from swarmslam.replay import replay, robot_frame_scan
-from swarmslam.run_view import RunWatch, frame_of
+from swarmslam.view.run_view import RunWatch, frame_of
 from swarmslam.bench.record import save_results
 
 WARM_UP = 1000  # scans before RSS and traced memory are taken as the baseline

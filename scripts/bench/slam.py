@@ -4,7 +4,7 @@ scored with their Kümmerle relations, per optimizer, with and without odometry,
 (endpoints less than 300 s apart) and global ones, as its published figures are. Every log's
 short relations (< 10 s apart) are reported apart with their tail (median, p99, max, the count
 above 5°): the front end's gross heading failures, which a mean hides. Each log's relations are
-audited against its own scans once (swarmslam.relations_audit, docs/method.md §7.1), and every
+audited against its own scans once (swarmslam.evaluation.relations_audit, docs/method.md §7.1), and every
 run's short relations are scored again over those the scans do not contradict, with the count
 of those above 10° — the failures that are the SLAM's, not the reference's."""
 
@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 
 from swarmslam.datasets import require
-from swarmslam.metrics import LOCAL_GAP, relation_errors
-from swarmslam.plots import require_matplotlib, slam_errors_over_time, slam_summary
-from swarmslam.relations import read_relations
-from swarmslam.relations_audit import audit_log, fits_of_gross_failures, short_tail_apart
+from swarmslam.evaluation.metrics import LOCAL_GAP, relation_errors
+from swarmslam.view.plots import require_matplotlib, slam_errors_over_time, slam_summary
+from swarmslam.formats.relations import read_relations
+from swarmslam.evaluation.relations_audit import audit_log, fits_of_gross_failures, short_tail_apart
 from swarmslam.replay import replay_run
 from swarmslam.bench.record import save_results
 
@@ -101,7 +101,7 @@ def bench_slam(data_dir: Path, optimizers=("abc", "pso", "fa"), logs=tuple(LOGS)
 
 def audited_tail(runtime, relations, audit, scans, scan_stamps, odometry=None) -> dict:
     """The run's short relations scored apart over those the scans do not contradict
-    (swarmslam.relations_audit.short_tail_apart), each gross failure listed with the fit of
+    (swarmslam.evaluation.relations_audit.short_tail_apart), each gross failure listed with the fit of
     its scans placed by the relation, by the run and by ``odometry`` (the pose it gave with
     each scan; ``fits_of_gross_failures``); empty when no relation lies within the run (a
     ``--limit`` run)."""

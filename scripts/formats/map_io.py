@@ -12,7 +12,7 @@ import numpy as np
 
 from swarmslam.runtime.occupancy_grid import OccupancyGrid, probability
 from swarmslam.runtime.realtime.writers import write_bytes_atomic, write_text_atomic
-from swarmslam.png import write_png
+from swarmslam.formats.png import write_png
 
 OCCUPIED_THRESH = 0.65
 FREE_THRESH = 0.196

@@ -1,5 +1,5 @@
-"""A robot's recording, whatever its format: a CARMEN log (:mod:`swarmslam.carmen`) or a ROS
-bag (:mod:`swarmslam.bags`: ROS 1, ROS 2 sqlite3 or MCAP), read into the same records.
+"""A robot's recording, whatever its format: a CARMEN log (:mod:`swarmslam.formats.carmen`) or a ROS
+bag (:mod:`swarmslam.formats.bags`: ROS 1, ROS 2 sqlite3 or MCAP), read into the same records.
 
     log = read_log("run.mcap", scan_topic="/scan")   # or a .clf / .clf.gz, a pipe, - for stdin
 """
@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from swarmslam.bags import is_bag, read_bag
-from swarmslam.carmen import CarmenLog, read_carmen
+from swarmslam.formats.bags import is_bag, read_bag
+from swarmslam.formats.carmen import CarmenLog, read_carmen
 
 
 @dataclass(frozen=True)

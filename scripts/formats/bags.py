@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from swarmslam.carmen import (ODOMETRY_MAX_GAP, CarmenLog, LaserRecord, OdometryRecord,
+from swarmslam.formats.carmen import (ODOMETRY_MAX_GAP, CarmenLog, LaserRecord, OdometryRecord,
                               pose_between)
 from swarmslam.runtime.matching.scan import binned_ranges
 

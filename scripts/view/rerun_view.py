@@ -27,7 +27,7 @@ import rerun as rr
 from swarmslam.runtime.pose import compose
 from swarmslam.runtime.pose_graph import ODOMETRY
 from swarmslam.runtime.realtime.writers import AtomicFile
-from swarmslam.map_painter import map_nodes
+from swarmslam.view.map_painter import map_nodes
 
 APP = "swarmslam"
 GRPC_PORT, WEB_PORT = 9876, 9090  # rerun's own defaults: what its users expect to open
@@ -112,7 +112,7 @@ class RerunView:
                         rr.Scalars(float(np.hypot(*(f.pose[:2] - f.truth[:2])))))
 
     def map(self, tick: int, stamp: float, painted, slam) -> None:
-        """The redrawn map (a :class:`swarmslam.map_painter.PaintedMap`), the graph and the
+        """The redrawn map (a :class:`swarmslam.view.map_painter.PaintedMap`), the graph and the
         trajectories (each redraw, not each tick)."""
         rec = self.rec
         self._time(tick, stamp)

@@ -17,10 +17,10 @@ does not contradict, is *unsupported*: the scans do not show it, either way.
 Scored apart on the relations the scans confirm and on those they contradict, a trajectory
 shows how much of its relation error is the reference's own: an error there is not the SLAM's.
 The audit also tells whose clock the reference's headings keep, the scans' or odometry's, and
-scores the trajectory again on that clock (scripts/relations_clock.py).
+scores the trajectory again on that clock (scripts/evaluation/relations_clock.py).
 
     >>> import numpy as np
-    >>> from swarmslam.relations import Relations
+    >>> from swarmslam.formats.relations import Relations
     >>> wall = np.c_[np.linspace(-2, 2, 81), np.full(81, 3.0)]   # a wall 3 m ahead ...
     >>> side = np.c_[np.full(61, 2.0), np.linspace(-1, 2, 61)]   # ... and one to the left
     >>> room = np.r_[wall, side]
@@ -44,16 +44,16 @@ from swarmslam.runtime.config import SensorConfig
 from swarmslam.runtime.pose import between, compose, transform_points
 from swarmslam.runtime.matching.scan import PointScan
 from swarmslam.runtime.realtime.writers import write_json_atomic
-from swarmslam.carmen import read_carmen
-from swarmslam.icp import icp
-from swarmslam.metrics import LOCAL_GAP, SHORT_GAP, kummerle, match_relations, relation_errors
-from swarmslam.plots import (gross_failures_figure, relations_audit_figure,
+from swarmslam.formats.carmen import read_carmen
+from swarmslam.evaluation.icp import icp
+from swarmslam.evaluation.metrics import LOCAL_GAP, SHORT_GAP, kummerle, match_relations, relation_errors
+from swarmslam.view.plots import (gross_failures_figure, relations_audit_figure,
                              require_matplotlib)
 from swarmslam.progress import Progress
-from swarmslam.relations import Relations, read_relations
-from swarmslam.relations_clock import AGREEMENT_DEG, reference_clock
+from swarmslam.formats.relations import Relations, read_relations
+from swarmslam.evaluation.relations_clock import AGREEMENT_DEG, reference_clock
 from swarmslam.replay import robot_frame_scan
-from swarmslam.tum import read_tum
+from swarmslam.formats.tum import read_tum
 
 INLIER_DISTANCE = 0.2  # m: a point this near the other scan's points fits it
 MIN_GAIN = 0.2  # share of points: ICP's best fitting this many more contradicts the relation
@@ -322,7 +322,7 @@ def worst_relations(stamps, poses, relations: Relations, scan_stamps, odometry, 
 def audit_command(log_path, relations_path, trajectory_path=None, json_path=None,
                   min_gain: float = MIN_GAIN, plots=None) -> dict:
     """The audit of ``relations_path`` against ``log_path``'s scans and the reference's clock
-    (``clock``: swarmslam.relations_clock.reference_clock), printed; with a TUM
+    (``clock``: swarmslam.evaluation.relations_clock.reference_clock), printed; with a TUM
     ``trajectory_path``, that trajectory scored apart (:func:`scored_apart`) and on the
     reference's clock; ``plots``: a folder for the figure."""
     if plots:

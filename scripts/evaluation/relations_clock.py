@@ -16,7 +16,7 @@ that time puts it on the reference's clock, and scoring it again shows how much 
 error was the clock.
 
     >>> import numpy as np
-    >>> from swarmslam.relations import Relations
+    >>> from swarmslam.formats.relations import Relations
     >>> t = np.arange(0.0, 20.0, 0.1)
     >>> omega = 0.5 * np.sin(t)                                   # turning one way, then back
     >>> heading = np.cumsum(omega) * 0.1
@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 from swarmslam.runtime.pose import between, compose, wrap_angle
-from swarmslam.metrics import LOCAL_GAP, kummerle, match_relations, nearest_stamps
+from swarmslam.evaluation.metrics import LOCAL_GAP, kummerle, match_relations, nearest_stamps
 
 MAX_ERROR_DEG = 3.0  # a relation's heading error beyond this is a failure, not a clock: left out
 AGREEMENT_DEG = 0.1  # a relation's heading within this of odometry's agrees with odometry

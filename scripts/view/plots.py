@@ -105,7 +105,7 @@ PLACED_BY = {"relation": "the relation", "trajectory": "the trajectory", "odomet
 
 def gross_failures_figure(out_dir, label: str, gross: list[dict]) -> Path:
     """A trajectory's gross short failures the audit could not call contradicted
-    (swarmslam.relations_audit.fits_of_gross_failures): per relation, its second scan (red) on
+    (swarmslam.evaluation.relations_audit.fits_of_gross_failures): per relation, its second scan (red) on
     its first (blue) placed by the relation (left), by the trajectory and, where the audit had
     odometry, by odometry (right), each titled with the share of points that fits — which
     placement the surfaces the scans share side with."""

@@ -4,7 +4,7 @@
 The loop that drives the SLAM hands each tick's :class:`Frame` to :meth:`RunWatch.tick` *after*
 the tick: nothing here runs inside the runtime's budget or changes the SLAM's state, so results
 are identical with and without it. The map is redrawn a few nodes per tick
-(:class:`swarmslam.map_painter.MapPainter`) and sent when a redraw completes.
+(:class:`swarmslam.view.map_painter.MapPainter`) and sent when a redraw completes.
 
 rerun, mcap: optional extras (``pip install -e ".[view]"``); asking for a view without them is a
 clear error before the run starts.
@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from swarmslam.map_painter import MapPainter
+from swarmslam.view.map_painter import MapPainter
 
 
 @dataclass
@@ -88,11 +88,11 @@ class RunWatch:
     def _open(self, config) -> None:
         self.sinks = []
         if self.view or self.record:
-            from swarmslam.rerun_view import RerunView  # optional extra, imported only when asked
+            from swarmslam.view.rerun_view import RerunView  # optional extra, imported only when asked
 
             self.sinks.append(RerunView(view=self.view, record=self.record, echo=self.echo))
         if self.mcap:
-            from swarmslam.mcap_recording import McapRecording
+            from swarmslam.view.mcap_recording import McapRecording
 
             self.sinks.append(McapRecording(self.mcap, config.sensor.max_points))
         self.painter = MapPainter(config.map, self.nodes_per_tick)

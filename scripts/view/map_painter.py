@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from swarmslam.runtime.occupancy_grid import OccupancyGrid, probability
-from swarmslam.map_io import trinary_values
+from swarmslam.formats.map_io import trinary_values
 
 
 def map_nodes(slam):
