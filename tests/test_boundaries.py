@@ -393,13 +393,16 @@ def test_a_user_who_cannot_write_home_nor_the_package_still_runs(tmp_path):
     not a traceback at import. (``__pycache__`` a file and HOME a device: no folder can be
     made there, even by root.)"""
     site = copy_installed_layout(tmp_path / "site")
-    for package in ("swarmslam", "swarmslam/runtime", "swarmslam/runtime/optimizers",
-                    "swarmslam_sim"):
+    for package in ("swarmslam", "swarmslam/runtime", "swarmslam/runtime/matching",
+                    "swarmslam/runtime/matching/optimizers", "swarmslam/runtime/front_end",
+                    "swarmslam/runtime/back_end", "swarmslam/runtime/localization",
+                    "swarmslam/runtime/realtime", "swarmslam_sim"):
         (site / package / "__pycache__").write_text("not a folder")
     env = {**{k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"},
            "PYTHONPATH": str(site), "HOME": "/dev/null", "XDG_CACHE_HOME": "/dev/null/cache",
            "PYTHONDONTWRITEBYTECODE": "1"}
-    code = ("import numpy as np, numba; from swarmslam.runtime.matching.scan import ranges_to_points; "
+    code = ("import numpy as np, numba; "
+            "from swarmslam.runtime.matching.scan import ranges_to_points; "
             "out = np.zeros((3, 2)); "
             "print(ranges_to_points(np.ones(3), np.zeros(3), 0.0, 5.0, out), "
             "numba.config.CACHE_DIR)")
