@@ -315,3 +315,12 @@ def test_the_room_rule_finds_a_front_end_that_reaches_into_the_back_end():
     assert room_of("swarmslam.runtime.front_end.tracker") == "front_end"
     assert room_of("swarmslam.runtime.back_end.loop_trial") not in ROOM_ALLOWED["front_end"]
     assert room_of("swarmslam.runtime.pose_graph") in ROOM_ALLOWED["front_end"]
+
+
+def test_every_package_folder_is_in_the_distribution():
+    """A sub-package missing from pyproject.toml's list imports in an editable install (the
+    folder is on the path) and is absent from a built one."""
+    listed = set(package_dirs().values())
+    folders = {str(init.parent.relative_to(ROOT)) for folder in FOLDERS
+               for init in (ROOT / folder).rglob("__init__.py")}
+    assert folders <= listed, sorted(folders - listed)
