@@ -48,7 +48,9 @@ from swarmslam.runtime.step_result import StepResult
 from swarmslam.runtime.realtime.warm_up import LoopDrive
 
 PAGE = 4096  # bytes: commit_memory writes one byte per page
-RUNTIME_PACKAGE = __name__.rpartition(".")[0] + "."  # the core's objects hold its buffers
+# The core's objects, in any of its rooms, hold its buffers; GraphSlam lives at the core's top,
+# so its package is the prefix of every room's module.
+RUNTIME_PACKAGE = GraphSlam.__module__.rpartition(".")[0] + "."
 
 
 class RuntimeStats:
