@@ -18,6 +18,7 @@ from swarmslam.runtime.matching.scan import PointScan
 
 
 NO_EVIDENCE, SURFACE, THROUGH = 0, 1, 2  # what one scan saw of a place (_seen_by)
+BEARING_BINS = 720  # bearing bins of a node scan's range image (polar_image): 0.5° each
 
 
 @njit(cache=True)

@@ -36,7 +36,7 @@ def estimated_bytes(config: SlamConfig) -> dict[str, int]:
         "matcher.grid_cells (reference grids, three matchers)": 3 * reference,
         "sensor.max_points × submaps": points * 2 * FLOAT * (
             c.front_end.submap_nodes + 2 * c.loop_closure.submap_nodes + 1
-            + c.loop_closure.wide_query_nodes),
+            + c.loop_closure.wide_search.query_nodes),
         "matcher.swarm.members (swarm workspaces)": 3 * (c.matcher.swarm.members or 100) * 16
         * FLOAT,
         "runtime.latency_window": c.runtime.latency_window * FLOAT,

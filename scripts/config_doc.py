@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import fields, is_dataclass
 
-from swarmslam.runtime.config import BASIC_FIELDS, EXPERT_FIELDS, SlamConfig, _toml_value
+from swarmslam.runtime.config import BASIC, EXPERT, SlamConfig, _toml_value
 
 
 def _allowed(meta) -> str:
@@ -18,7 +18,7 @@ def _allowed(meta) -> str:
 
 def fields_markdown(config=None) -> str:
     """Per section, a table of its fields: name, default, meaning, allowed values, and its
-    level: **basic** (set by users), standard, or internal (``config show --all`` only)."""
+    level: **basic** (set by users), standard, or expert (``config show --all`` only)."""
     config = config or SlamConfig()
     out = ["## Fields"]
 
@@ -28,9 +28,9 @@ def fields_markdown(config=None) -> str:
             out.extend(["", f"### `[{table}]`", "", "| field | default | meaning | allowed | level |",
                         "|---|---|---|---|---|"])
             for f in plain:
-                key = f"{table}.{f.name}"
-                level = ("**basic**" if key in BASIC_FIELDS else
-                         "internal" if key in EXPERT_FIELDS else "standard")
+                own = f.metadata["level"]
+                level = ("**basic**" if own == BASIC else "expert" if own == EXPERT
+                         else "standard")
                 out.append(f"| `{f.name}` | `{_toml_value(getattr(section, f.name))}` | "
                            f"{f.metadata.get('doc', '')} | {_allowed(f.metadata)} | {level} |")
         for f in fields(section):

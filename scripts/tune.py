@@ -16,7 +16,7 @@ A spec — the log fields of a sweep spec (``logs``, ``seeds``, ``odometry``, ``
     [search]                      # configuration fields and their ranges
     "front_end.node_distance" = { low = 0.2, high = 0.6 }
     "matcher.refine_evaluations" = { low = 200, high = 900 }    # integers: an integer range
-    "loop_closure.wide_resolution" = { low = 0.1, high = 0.8, log = true }
+    "loop_closure.wide_search.resolution" = { low = 0.1, high = 0.8, log = true }
     "matcher.swarm.optimizer" = { choices = ["abc", "pso"] }
 
     [reference]                   # eT (m) per log without a published figure

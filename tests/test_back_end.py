@@ -127,7 +127,7 @@ def test_a_loop_refused_for_the_drift_it_repairs_is_kept_when_the_next_agrees(mo
     assert loops.counts.agreed == int(kept) and loops.counts.rejected_consistency == 2 - int(kept)
     if kept:  # the drift repaired: the far end, 1.48 m long, pulled back near the truth
         assert abs(slam.graph.poses[n - 1, 0] - (n - 1) * 0.5) < 0.15
-    slam, back, z = drifted_chain(override(SlamConfig(), {"loop_closure.agreement_nodes": 0}))
+    slam, back, z = drifted_chain(override(SlamConfig(), {"loop_closure.agreement.enabled": False}))
     back.close_loop(0, n - 2, z)
     assert not back.close_loop(1, n - 1, z)  # without the rule, refused as before
 
@@ -165,9 +165,9 @@ def test_a_loop_to_a_node_scanned_in_a_fast_turn_is_given_to_a_steady_neighbour(
 def test_two_loops_that_agree_give_up_the_kept_loops_they_contradict(given_up):
     """Wrong loops kept (nodes 0–2 → 50–52, where drift put them) make the graph refuse the
     right loops of the place after them for their own error: the map holds the place twice.
-    Two in a row that agree give up the kept loops they strain (at most ``max_given_up``) and
+    Two in a row that agree give up the kept loops they strain (at most ``agreement.max_given_up``) and
     are kept (docs/method.md §5, step 4)."""
-    config = override(SlamConfig(), {"loop_closure.max_given_up": given_up})
+    config = override(SlamConfig(), {"loop_closure.agreement.max_given_up": given_up})
     slam, back = chain_with_wrong_loops(config)
     g, loops, z = slam.graph, back.loops, np.array([51 * 0.5, 0.0, 0.0])
     bent, edges = abs(g.poses[55, 1]), g.n_edges

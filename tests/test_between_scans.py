@@ -9,7 +9,7 @@ import pytest
 from swarmslam.runtime.front_end.between_scans import (FIRST_READING, NEW_READING, NO_READING,
                                              STALE_READING, BetweenSmoothing, estimate_noise,
                                              smooth_headings, smooth_positions)
-from swarmslam.runtime.config import SlamConfig, override
+from swarmslam.runtime.config import SlamConfig, override, to_dict
 from swarmslam.runtime.pose import between, compose, wrap_angle
 from swarmslam.runtime.matching.scan import PointScan
 from swarmslam.runtime.realtime.session import migrate
@@ -144,7 +144,7 @@ def test_the_front_end_records_what_odometry_read_at_each_scan():
     again.restore(state)
     assert np.array_equal(again.front_end.scans.reading[:6], fe.scans.reading[:6])
     assert np.array_equal(again.front_end.scans.odometry[:6], fe.scans.odometry[:6])
-    v6 = as_version_6({"slam": state, "inbox": {}})
+    v6 = as_version_6({"slam": state, "inbox": {}, "config": to_dict(SlamConfig())})
     saved = v6["slam"]["front_end"].pop("scan_odometry")
     v6["slam"]["front_end"]["scan_odometry_heading"] = saved[:, 2]
     old = GraphSlam(SlamConfig(), seed=0)
@@ -184,14 +184,14 @@ def noisy_run(config):
 def test_the_trajectory_smooths_the_headings_between_nodes_only():
     """Noisy matched headings: the trajectory's between scans come nearer the truth in
     heading, its node scans stay where the graph put them."""
-    config = override(SlamConfig(), {"front_end.between_min_pairs": 10,
-                                     "front_end.smooth_between_positions": False})
+    config = override(SlamConfig(), {"front_end.between_scans.min_pairs": 10,
+                                     "front_end.between_scans.positions": False})
     slam, truth, is_node, rng = noisy_run(config)
     fe = slam.front_end
     fe.scans.rel[: fe.scans.n, 2] += np.where(is_node, 0.0, rng.normal(0.0, 0.01, fe.scans.n))
     _, smoothed_poses = slam.trajectory()
-    assert fe.scans.heading_noise.trusted(fe.config.front_end.between_significance)
-    fe.scans.config = override(config, {"front_end.smooth_between_headings": False}).front_end
+    assert fe.scans.heading_noise.trusted(BetweenSmoothing().significance)
+    fe.scans.config = override(config, {"front_end.between_scans.headings": False}).front_end
     _, matched = slam.trajectory()
     assert np.array_equal(smoothed_poses[is_node], matched[is_node])
     assert np.allclose(smoothed_poses[:, :2], matched[:, :2], rtol=0, atol=1e-12)
@@ -202,15 +202,15 @@ def test_the_trajectory_smooths_the_headings_between_nodes_only():
 def test_the_trajectory_smooths_the_positions_between_nodes_only():
     """Noisy matched positions: the between scans come nearer the truth in position, the
     node scans stay where the graph put them and no heading moves."""
-    config = override(SlamConfig(), {"front_end.between_min_pairs": 10,
-                                     "front_end.smooth_between_headings": False})
+    config = override(SlamConfig(), {"front_end.between_scans.min_pairs": 10,
+                                     "front_end.between_scans.headings": False})
     slam, truth, is_node, rng = noisy_run(config)
     fe = slam.front_end
     n = fe.scans.n
     fe.scans.rel[:n, :2] += np.where(is_node[:, None], 0.0, rng.normal(0.0, 0.02, (n, 2)))
     _, smoothed_poses = slam.trajectory()
-    assert fe.scans.position_noise.trusted(fe.config.front_end.between_significance)
-    fe.scans.config = override(config, {"front_end.smooth_between_positions": False}).front_end
+    assert fe.scans.position_noise.trusted(BetweenSmoothing().significance)
+    fe.scans.config = override(config, {"front_end.between_scans.positions": False}).front_end
     _, matched = slam.trajectory()
     assert np.array_equal(smoothed_poses[is_node], matched[is_node])
     assert np.array_equal(smoothed_poses[:, 2], matched[:, 2])

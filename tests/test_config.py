@@ -9,11 +9,20 @@ from swarmslam.hardware.models import MODELS
 from swarmslam.runtime.config import (
     OPTIMIZERS,
     PRESETS,
+    BASIC,
+    DOC_LENGTH,
+    EXPERT,
+    FIXED_FIELDS,
     REMOVED_FIELDS,
+    RENAMED_FIELDS,
     RPLIDAR_MODELS,
     SIMULATED_LIDARS,
+    STANDARD,
+    SWITCHED_FIELDS,
     ConfigError,
     SlamConfig,
+    field_level,
+    field_names,
     from_dict,
     from_toml,
     load_config,
@@ -63,8 +72,8 @@ def test_one_changed_field_changes_that_field_only(tmp_path):
 
 
 def test_none_and_integers_where_floats_are_expected(tmp_path):
-    config = from_toml('[front_end]\nodometry_gate = "none"\nnode_angle = 1\n')
-    assert config.front_end.odometry_gate is None
+    config = from_toml('[optimizer]\nrobust_loops = "none"\n[front_end]\nnode_angle = 1\n')
+    assert config.optimizer.robust_loops is None
     assert config.front_end.node_angle == 1.0 and isinstance(config.front_end.node_angle, float)
 
 
@@ -77,8 +86,8 @@ def test_none_and_integers_where_floats_are_expected(tmp_path):
     ("[matcher.swarm]\noptimizer = \"gwo\"\n", r"matcher.swarm.optimizer: must be one of"),
     ("[matcher]\nguess_window = [0.3, 0.3]\n", r"matcher.guess_window: needs 3 values"),
     ("[runtime]\nrate_hz = 100\ntick_budget = 0.05\n", r"runtime.tick_budget: must fit the period"),
-    ("[front_end]\nrecovery_heading_step = 0.001\n",
-     r"front_end.recovery_heading_step: must be 0 or >= 0.005"),
+    ("[front_end.recovery]\nheading_step = 0.001\n",
+     r"front_end.recovery.heading_step: must be 0 or >= 0.005"),
     ("[front_end]\nnode_distance = 0.4\n[[oops\n", r"mine.toml: not valid TOML"),
     ("[front_end]\ninformation = true\n", r"front_end.information: must be a string"),
     ("[matcher]\nscan_to_map = 1\n", r"matcher.scan_to_map: must be true or false"),
@@ -167,15 +176,34 @@ def _shown_fields(argv, capsys) -> list[str]:
             if " = " in line and not line.startswith("#")]
 
 
-def test_config_show_lists_at_most_100_fields_and_basic_at_most_20(capsys):
-    from swarmslam.runtime.config import BASIC_FIELDS, EXPERT_FIELDS, field_names
-
+def test_config_show_lists_at_most_60_fields_and_all_at_most_150(capsys):
+    """Each field declares its level in its own metadata; the listings follow it."""
     every = field_names()
-    assert (BASIC_FIELDS | EXPERT_FIELDS) <= set(every)  # no level names a field that is gone
-    assert not BASIC_FIELDS & EXPERT_FIELDS
-    assert len(_shown_fields([], capsys)) == len(every) - len(EXPERT_FIELDS) <= 100
-    assert len(_shown_fields(["--basic"], capsys)) == len(BASIC_FIELDS) <= 20
-    assert len(_shown_fields(["--all"], capsys)) == len(every)
+    levels = {key: field_level(key) for key in every}
+    assert set(levels.values()) == {BASIC, STANDARD, EXPERT}
+    shown = [key for key in every if levels[key] != EXPERT]
+    assert _shown_fields([], capsys) == [key.rsplit(".", 1)[1] for key in shown]
+    assert len(shown) <= 60
+    assert len(_shown_fields(["--basic"], capsys)) == list(levels.values()).count(BASIC) <= 20
+    assert len(_shown_fields(["--all"], capsys)) == len(every) <= 150
+
+
+def test_every_field_doc_is_short():
+    """Unit, what, what its default means: a rule's reasoning is docs/method.md's."""
+    long = {key: len(f.metadata["doc"]) for key, f, _ in leaves(SlamConfig())
+            if len(f.metadata["doc"]) > DOC_LENGTH}
+    assert not long, long
+
+
+def test_a_switch_is_an_enabled_flag_not_a_sentinel():
+    """A component that can be off has ``enabled``; off, its rule never runs."""
+    config = SlamConfig()
+    sections = [config.front_end.odometry_gate, config.front_end.heading_prior,
+                config.front_end.previous_scan_check, config.front_end.odometry_scale,
+                config.loop_closure.agreement, config.loop_closure.wide_search]
+    assert all(section.enabled is True for section in sections)
+    off = override(config, {"front_end.odometry_gate.enabled": False})
+    assert off.front_end.odometry_gate.tolerance == config.front_end.odometry_gate.tolerance
 
 
 @pytest.mark.parametrize("level", ["basic", "standard"])
@@ -183,22 +211,140 @@ def test_a_shorter_listing_is_a_valid_file_of_the_fields_it_shows(level):
     """Read back over the preset, the listing gives the shown fields' values; what it leaves
     out keeps the preset's."""
     base = preset("rplidar-a2")
-    config = override(base, {"front_end.node_distance": 0.3, "loop_closure.wide_levels": 5})
+    config = override(base, {"front_end.node_distance": 0.3,
+                             "loop_closure.wide_search.max_radius": 90.0})
     back = from_toml(to_toml(config, level=level), base=base)
     assert back.front_end.node_distance == 0.3  # basic: shown at every level
-    assert back.loop_closure.wide_levels == base.loop_closure.wide_levels  # internal: left out
-    assert back == override(config, {"loop_closure.wide_levels": base.loop_closure.wide_levels})
+    internal = base.loop_closure.wide_search.max_radius  # expert: left out
+    assert back.loop_closure.wide_search.max_radius == internal
+    assert back == override(config, {"loop_closure.wide_search.max_radius": internal})
 
 
-def test_no_removed_field_is_a_field_again():
-    """A name in REMOVED_FIELDS is dropped from every file and session that names it: one the
-    configuration has again would be ignored without a word (odometry_scale_dead_zone was)."""
-    fields = to_dict(SlamConfig())
-    again = [path for path in REMOVED_FIELDS
-             if path.split(".")[1] in fields[path.split(".")[0]]]
-    assert not again, again
-    changed = from_dict({"front_end": {"odometry_scale_dead_zone": 0.02}})
-    assert changed.front_end.odometry_scale_dead_zone == 0.02
+def test_no_older_name_is_a_field_again():
+    """A name the older-names mapping takes is read as that mapping says: one this version has
+    again would be renamed or dropped without a word (odometry_scale_dead_zone was)."""
+    every = set(field_names())
+    older = set(REMOVED_FIELDS) | set(FIXED_FIELDS) | set(RENAMED_FIELDS) | set(SWITCHED_FIELDS)
+    assert not older & every
+    assert set(RENAMED_FIELDS.values()) <= every
+    changed = from_dict({"front_end": {"odometry_scale": {"limits": [0.9, 1.1]}}})
+    assert changed.front_end.odometry_scale.limits == (0.9, 1.1)
+
+
+def test_an_older_files_moved_and_switched_names_read_as_this_versions():
+    """A file (or session) in the flat names of the version before: a moved field takes its
+    new place, a sentinel turns its component off, any other value switches it on with it."""
+    older = {"front_end": {"odometry_gate_share": [0.3, 0.4], "odometry_gate": "none",
+                           "odometry_heading_weight": 2.5, "previous_scan_gain": 1.0,
+                           "calibrate_odometry_scale": False, "recovery_heading_step": 0.1},
+             "loop_closure": {"wide_after": 0, "wide_radius": 40.0, "agreement_nodes": 4,
+                              "max_given_up": 1}}
+    config = from_dict(older)
+    fe, lc = config.front_end, config.loop_closure
+    assert fe.odometry_gate.share == (0.3, 0.4) and not fe.odometry_gate.enabled
+    assert fe.heading_prior.enabled and fe.heading_prior.weight == 2.5
+    assert not fe.previous_scan_check.enabled and not fe.odometry_scale.enabled
+    assert fe.recovery.heading_step == 0.1
+    assert not lc.wide_search.enabled and lc.wide_search.radius == 40.0
+    assert lc.agreement.nodes == 4 and lc.agreement.max_given_up == 1
+    assert override(SlamConfig(), {"front_end.odometry_gate": [0.1, 0.05]}
+                    ).front_end.odometry_gate.tolerance == (0.1, 0.05)  # dotted, too
+
+
+def test_a_fixed_field_at_its_value_reads_and_another_is_refused_by_name():
+    """A field that became a constant: an older file naming it at that value reads as before;
+    another value is refused, naming the field and the constant."""
+    older = from_dict_tables(dict(FIXED_FIELDS))
+    assert from_dict(older) == SlamConfig()
+    with pytest.raises(ConfigError, match=r"loop_closure.wide_levels = 5: this field is now a "
+                                          r"constant, 6"):
+        override(SlamConfig(), {"loop_closure.wide_levels": 5})
+
+
+def test_the_fixed_fields_values_are_the_constants_the_code_uses():
+    from swarmslam.runtime.back_end import loop_alignment, loop_closure, loop_trial, slices
+    from swarmslam.runtime.back_end import wide_loop_search as wide
+    from swarmslam.runtime.back_end.graph_optimizer import GaussNewton
+    from swarmslam.runtime.front_end import odometry_gate, odometry_readings, odometry_scale
+    from swarmslam.runtime.front_end import recovery, tracker
+    from swarmslam.runtime.front_end.between_scans import BetweenSmoothing
+    from swarmslam.runtime.localization import localizer, map_tracking, relocalization
+    from swarmslam.runtime.matching import scan_matcher
+    from swarmslam.runtime.node_scans import BEARING_BINS
+    from swarmslam.runtime.realtime import fixed_rate, inbox
+    code = {
+        "input.jump_slack": inbox.JUMP_SLACK, "input.turn_slack": inbox.TURN_SLACK,
+        "front_end.track_inlier_slope": scan_matcher.INLIER_SLOPE,
+        "front_end.weak_information_factor": tracker.WEAK_INFORMATION_FACTOR,
+        "front_end.odometry_gate_distance": odometry_gate.OVERRULE_DISTANCE,
+        "front_end.odometry_heading_sigma": odometry_gate.HEADING_SIGMA,
+        "front_end.previous_scan_fit": odometry_gate.PREVIOUS_SCAN_FIT,
+        "front_end.recovery_seek_ratio": recovery.SEEK_RATIO,
+        "front_end.window_margin": scan_matcher.BOX_MARGIN,
+        "front_end.curvature_step": scan_matcher.CURVATURE_STEP,
+        "front_end.period_restart_gaps": odometry_readings.RESTART_GAPS,
+        "front_end.odometry_scale_prior_travel": odometry_scale.PRIOR_TRAVEL,
+        "front_end.odometry_scale_dead_zone": odometry_scale.DEAD_ZONE,
+        "front_end.between_significance": BetweenSmoothing().significance,
+        "front_end.between_gate": BetweenSmoothing().gate,
+        "matcher.surface_gap_ratio": scan_matcher.SURFACE_GAP_RATIO,
+        "matcher.coarse_radius": scan_matcher.COARSE_RADIUS,
+        "matcher.polish_step": scan_matcher.POLISH_STEP,
+        "matcher.polish_halvings": scan_matcher.POLISH_HALVINGS,
+        "matcher.occupied_radius": scan_matcher.OCCUPIED_RADIUS,
+        "loop_closure.agreement_distance": loop_closure.AGREEMENT_DISTANCE,
+        "loop_closure.agreement_angle": loop_closure.AGREEMENT_ANGLE,
+        "loop_closure.min_strain": loop_trial.MIN_STRAIN,
+        "loop_closure.max_violations": loop_alignment.MAX_VIOLATIONS,
+        "loop_closure.inlier_slope": scan_matcher.INLIER_SLOPE,
+        "loop_closure.bearing_bins": BEARING_BINS,
+        "loop_closure.position_floor": loop_closure.POSITION_FLOOR,
+        "loop_closure.window_margin": scan_matcher.BOX_MARGIN,
+        "loop_closure.wide_hit_sigma": wide.HIT_SIGMA,
+        "loop_closure.wide_surface_tolerance": wide.SURFACE_TOLERANCE,
+        "loop_closure.wide_levels": wide.LEVELS, "loop_closure.wide_query_range": wide.QUERY_RANGE,
+        "loop_closure.wide_query_points": wide.QUERY_POINTS,
+        "loop_closure.wide_ratio": wide.RIVAL_RATIO,
+        "loop_closure.wide_distinct_distance": wide.DISTINCT_DISTANCE,
+        "loop_closure.wide_agreement": wide.AGREEMENT,
+        "loop_closure.wide_refine_window": wide.WIDE_REFINE_WINDOW,
+        "optimizer.lm_initial_damping": GaussNewton.LM_INITIAL_DAMPING,
+        "optimizer.lm_iteration_factor": GaussNewton.LM_ITERATION_FACTOR,
+        "relocalization.coarse_hit_sigma": relocalization.COARSE_HIT_SIGMA,
+        "relocalization.coarse_points": relocalization.COARSE_POINTS,
+        "relocalization.coarse_min_score": relocalization.COARSE_MIN_SCORE,
+        "relocalization.coarse_ratio": relocalization.COARSE_RATIO,
+        "relocalization.coarse_candidates": relocalization.COARSE_CANDIDATES,
+        "relocalization.coarse_distinct_distance": relocalization.COARSE_DISTINCT_DISTANCE,
+        "relocalization.coarse_distinct_angle": relocalization.COARSE_DISTINCT_ANGLE,
+        "relocalization.refine_moves": relocalization.REFINE_MOVES,
+        "relocalization.heading_levels": relocalization.HEADING_LEVELS,
+        "relocalization.query_spacing": relocalization.QUERY_SPACING,
+        "relocalization.refine_nodes": relocalization.REFINE_NODES,
+        "localization.heading_weight": map_tracking.HEADING_WEIGHT,
+        "localization.reanchor_distance": map_tracking.REANCHOR_DISTANCE,
+        "localization.merge_distance": localizer.MERGE_DISTANCE,
+        "localization.merge_angle": localizer.MERGE_ANGLE,
+        "localization.confirm_miss_floor": localizer.CONFIRM_MISS_FLOOR,
+        "runtime.min_evaluation_share": fixed_rate.MIN_EVALUATION_SHARE,
+        "runtime.front_end_cost_smoothing": fixed_rate.FRONT_END_COST_SMOOTHING,
+        "runtime.slice_cost_decay": slices.SLICE_COST_DECAY,
+        "runtime.slice_cost_memory": slices.SLICE_COST_MEMORY,
+        "runtime.malloc_mmap_threshold": fixed_rate.MALLOC_MMAP_THRESHOLD,
+        "runtime.warm_up_scans": fixed_rate.WARM_UP_SCANS}
+    assert code == FIXED_FIELDS
+
+
+def from_dict_tables(dotted: dict) -> dict:
+    """Dotted names as the nested tables a file or session holds."""
+    tables: dict = {}
+    for key, value in dotted.items():
+        *parents, leaf = key.split(".")
+        node = tables
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[leaf] = list(value) if isinstance(value, tuple) else value
+    return tables
 
 
 def test_a_removed_field_left_off_reads_and_one_turned_on_is_refused_by_name():

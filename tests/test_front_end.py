@@ -50,8 +50,7 @@ class Scene:
         self.gate = OdometryGate(c, self.matcher, self.reference, self.config.sensor.max_points,
                                  self.counts)
         self.degeneracy = DegeneracyCheck(c, self.matcher, self.reference, self.counts)
-        self.readings = OdometryReadings(c.stale_motion, c.periodic_odometry_ratio,
-                                         c.period_restart_gaps)
+        self.readings = OdometryReadings(c.stale_motion, c.periodic_odometry_ratio)
         self.recovery = Recovery(self.config, self.matcher, self.reference, self.gate,
                                  self.degeneracy, self.readings, self.counts)
 
@@ -71,16 +70,16 @@ def test_the_gate_allows_a_fixed_part_and_a_share_of_the_motion():
     pose = np.zeros(3)
     assert not contradicts_odometry(pose, [0.34, 0.0, 0.0], step, c)
     assert contradicts_odometry(pose, [0.36, 0.0, 0.0], step, c)
-    allowed = c.odometry_gate[1] + c.odometry_gate_share[1] * step[2]
+    allowed = c.odometry_gate.tolerance[1] + c.odometry_gate.share[1] * step[2]
     assert not contradicts_odometry(pose, [0.0, 0.0, 0.99 * allowed], step, c)
     assert contradicts_odometry(pose, [0.0, 0.0, 1.01 * allowed], step, c)
     assert not contradicts_odometry(pose, [0.0, 0.0, 1.01 * allowed], step, c, heading=False)
-    off = override(SlamConfig(), {"front_end.odometry_gate": None}).front_end
+    off = override(SlamConfig(), {"front_end.odometry_gate.enabled": False}).front_end
     assert not contradicts_odometry(pose, [9.0, 9.0, 3.0], step, off)
 
 
 def test_the_overrule_rule_weighs_a_new_reading_by_its_misses_and_a_stale_one_by_a_gain():
-    c = SlamConfig().front_end  # odometry_gate_explained 0.45, odometry_gate_fit 0.1
+    c = SlamConfig().front_end  # odometry_gate.explained 0.45, odometry_gate.fit 0.1
     assert scans_overrule(1.0, 0.9, False, c)  # fits every point the prediction misses
     assert not scans_overrule(0.67, 0.5, False, c)  # two thirds where it fits half
     assert scans_overrule(0.67, 0.5, True, c)  # a stale reading: the plain gain suffices
@@ -114,7 +113,7 @@ def test_a_match_the_gate_refuses_stands_where_the_scans_overrule_odometry():
     assert s.gate.fit(s.scan, far) < s.config.front_end.min_track_inliers
     assert not s.gate.lost(s.scan, MOTION, s.predicted(far), inside=True)
     assert s.counts.overruled_odometry == 1
-    strict = Scene(override(SlamConfig(), {"front_end.odometry_gate_explained": 1.0}))
+    strict = Scene(override(SlamConfig(), {"front_end.odometry_gate.explained": 1.0}))
     assert strict.gate.lost(strict.scan, MOTION, strict.predicted(far), inside=True)
 
 
@@ -164,7 +163,7 @@ def test_the_heading_prior_holds_a_turned_match_to_odometrys_heading(scene):
     assert abs(held[2] - MOTION[2]) < math.radians(0.5) and s.counts.held_to_odometry == 1
     near = MatchResult(compose(MOTION, [0.0, 0.0, math.radians(0.5)]), 1.0, 1.0, False, 0, 0)
     assert s.gate.heading_prior(s.scan, near, s.predicted(MOTION, step=step)) is near.pose
-    off = Scene(override(SlamConfig(), {"front_end.odometry_heading_weight": 0.0}))
+    off = Scene(override(SlamConfig(), {"front_end.heading_prior.enabled": False}))
     assert off.gate.heading_prior(off.scan, match, off.predicted(MOTION, step=step)) is turned
 
 
@@ -216,8 +215,8 @@ def test_scans_only_recovers_after_a_gap_in_the_stream():
 def test_scans_between_two_nodes_share_the_graphs_correction_of_both():
     # the spread alone: the between-scan smoothing (test_between_scans.py) reads the
     # trajectory, so a bent graph would move what it takes from odometry too
-    slam, _, _ = run(config=override(SlamConfig(), {"front_end.smooth_between_headings": False,
-                                                    "front_end.smooth_between_positions": False}))
+    slam, _, _ = run(config=override(SlamConfig(), {"front_end.between_scans.headings": False,
+                                                    "front_end.between_scans.positions": False}))
     fe, g = slam.front_end, slam.graph
     stamps, before = slam.trajectory()
     node = fe.scans.node[: fe.scans.n]
@@ -244,12 +243,12 @@ def test_match_contradicting_odometry_is_not_trusted_unless_the_scans_clearly_si
     """A scan taken as if the robot had turned 12° more than odometry (right here) says. The
     front end cannot tell such a scan from odometry that erred: it fits the keyframe fully at
     the turned pose, far better than at odometry's prediction. With the scans never allowed to
-    overrule odometry (``odometry_gate_fit`` and ``odometry_gate_explained`` 1), the gate
+    overrule odometry (``odometry_gate.fit`` and ``odometry_gate.explained`` 1), the gate
     keeps odometry's prediction for it and tracking goes on from there; by default the scans
     are believed (docs/method.md §6.1: real odometry lags fast turns by that much); with no
     gate at all, likewise."""
-    refused = override(SlamConfig(), {"front_end.odometry_gate_fit": 1.0,
-                                      "front_end.odometry_gate_explained": 1.0})
+    refused = override(SlamConfig(), {"front_end.odometry_gate.fit": 1.0,
+                                      "front_end.odometry_gate.explained": 1.0})
     slam, heading_error = glitch_run(refused)
     # (the glitch scan became a node here, so the next scans match against it until the next
     # node: also gated)
@@ -258,7 +257,7 @@ def test_match_contradicting_odometry_is_not_trusted_unless_the_scans_clearly_si
     trusted, heading_error = glitch_run(SlamConfig())
     assert trusted.front_end.counts.overruled_odometry >= 1
     assert heading_error[20] > 8.0, heading_error[20]
-    ungated, heading_error = glitch_run(override(SlamConfig(), {"front_end.odometry_gate": None}))
+    ungated, heading_error = glitch_run(override(SlamConfig(), {"front_end.odometry_gate.enabled": False}))
     assert ungated.front_end.counts.lost_matches == 0 and ungated.front_end.counts.overruled_odometry == 0
     assert heading_error[20] > 8.0, heading_error[20]
 
@@ -269,7 +268,7 @@ def test_a_rescued_match_within_the_gate_stands_when_it_fits_far_better():
     sought again around the scans' own motion and found where the robot is. It corrects
     odometry by less than the gate allows over a 48° step, so it contradicts nothing, and it
     fits far better than the prediction: it stands (docs/method.md §6.1). When new readings
-    are never overruled (``odometry_gate_explained`` 1) the prediction stands in, 18° off."""
+    are never overruled (``odometry_gate.explained`` 1) the prediction stands in, 18° off."""
     loop = loop_path(80)
     world = room_world(0, size=(12.0, 9.0), boxes=14, walls=0, keep_clear=loop)
     turn, jump = np.radians(30.0), np.radians(18.0)
@@ -281,7 +280,7 @@ def test_a_rescued_match_within_the_gate_stands_when_it_fits_far_better():
     slam, errors = heading_errors(SlamConfig(), world, path, reading, 1.0)
     assert slam.front_end.counts.rescued_matches >= 1, errors
     assert errors.max() < 1.0, errors
-    refused = override(SlamConfig(), {"front_end.odometry_gate_explained": 1.0})
+    refused = override(SlamConfig(), {"front_end.odometry_gate.explained": 1.0})
     slam, errors = heading_errors(refused, world, path, reading, 1.0)
     assert slam.front_end.counts.rescued_matches == 0
     assert errors[6] > 15.0, errors
@@ -291,7 +290,7 @@ def test_the_scans_overrule_a_new_reading_by_the_share_of_its_misses_they_fit():
     """Against a new reading the match must fit much of what odometry's prediction misses:
     every point against nine in ten (a prediction a few degrees off in a turn) overrules it;
     two thirds against a half (a hall whose walls fit a slip either way) does not. Against a
-    stale reading, which says nothing of the motion, a plain gain above ``odometry_gate_fit``
+    stale reading, which says nothing of the motion, a plain gain above ``odometry_gate.fit``
     suffices."""
     c = SlamConfig().front_end
     assert scans_overrule(1.0, 0.91, stale=False, config=c)
@@ -299,8 +298,8 @@ def test_the_scans_overrule_a_new_reading_by_the_share_of_its_misses_they_fit():
     assert not scans_overrule(1.0, 0.91, stale=True, config=c)  # a gain of 0.09 < 0.1
     assert scans_overrule(0.63, 0.46, stale=True, config=c)
     assert not scans_overrule(0.9, 0.9, stale=False, config=c)
-    never = override(SlamConfig(), {"front_end.odometry_gate_explained": 1.0,
-                                    "front_end.odometry_gate_fit": 1.0}).front_end
+    never = override(SlamConfig(), {"front_end.odometry_gate.explained": 1.0,
+                                    "front_end.odometry_gate.fit": 1.0}).front_end
     assert not any(scans_overrule(1.0, p, stale, never) for p in (0.0, 0.5, 0.99)
                    for stale in (False, True))
 
@@ -360,10 +359,10 @@ def test_the_previous_scan_disowns_a_match_on_a_wall_the_submap_holds_twice():
     about equally, and some seeds' matches take the copy 4.5° off, which odometry's gate (5°)
     lets pass. The previous scan holds each wall once: odometry's prediction fits it clearly
     better than such a match, so the match is lost and the prediction stands
-    (docs/method.md §6.1). With the check off (``previous_scan_gain`` 1) they go wrong."""
+    (docs/method.md §6.1). With the check off (``previous_scan_check.enabled`` false) they go wrong."""
     # (odometry's heading weighed too would hold those matches first: the next test)
-    alone = override(SlamConfig(), {"front_end.odometry_heading_weight": 0.0})
-    never = override(alone, {"front_end.previous_scan_gain": 1.0})
+    alone = override(SlamConfig(), {"front_end.heading_prior.enabled": False})
+    never = override(alone, {"front_end.previous_scan_check.enabled": False})
     worst_unchecked, worst_checked, disowned = worst_without_and_with(never, alone,
                                                                        "disowned_matches")
     assert max(worst_unchecked) > 4.0, worst_unchecked
@@ -373,11 +372,11 @@ def test_the_previous_scan_disowns_a_match_on_a_wall_the_submap_holds_twice():
 def test_of_two_copies_of_a_wall_the_match_nearer_odometry_stands():
     """The same submap with the wall held twice, the previous scan's check off: a match on
     the copy 4.5° off fits about as well as the optimum at odometry's heading (which saw no
-    turn), so with odometry's heading weighed (``odometry_heading_weight``) the nearer optimum
+    turn), so with odometry's heading weighed (``heading_prior.weight``) the nearer optimum
     stands (docs/method.md §6.1); weighed at 0, some seeds take the far copy."""
-    unweighed = override(SlamConfig(), {"front_end.previous_scan_gain": 1.0,
-                                        "front_end.odometry_heading_weight": 0.0})
-    weighed = override(SlamConfig(), {"front_end.previous_scan_gain": 1.0})
+    unweighed = override(SlamConfig(), {"front_end.previous_scan_check.enabled": False,
+                                        "front_end.heading_prior.enabled": False})
+    weighed = override(SlamConfig(), {"front_end.previous_scan_check.enabled": False})
     worst_unweighed, worst_weighed, held = worst_without_and_with(unweighed, weighed,
                                                                    "held_to_odometry")
     assert max(worst_unweighed) > 4.0, worst_unweighed
@@ -477,8 +476,8 @@ def test_a_pivot_beyond_every_box_is_found_over_the_turn_the_robot_can_make():
     its odometry (exact) read every second scan. The turn starts at a scan with a stale
     reading, which says nothing of it: the scans' last motion says no turn, the match pressed
     against the stale box (±34°) and sought again around itself reaches 68°. One more search,
-    over every heading the robot can turn to in half a second (``pivot_search_rate`` 3 rad/s:
-    ±86°), finds it (docs/method.md §6.1, "Recovery"); without it (``pivot_search_rate`` 0) the
+    over every heading the robot can turn to in half a second (``recovery.pivot_search_rate`` 3 rad/s:
+    ±86°), finds it (docs/method.md §6.1, "Recovery"); without it (``recovery.pivot_search_rate`` 0) the
     prediction stands in, 75° off, there and at the next stale scan."""
     loop = loop_path(80)
     world = room_world(0, size=(12.0, 9.0), boxes=14, walls=0, keep_clear=loop)
@@ -490,20 +489,20 @@ def test_a_pivot_beyond_every_box_is_found_over_the_turn_the_robot_can_make():
 
     slam, errors = heading_errors(SlamConfig(), world, path, every_second_scan, 0.5)
     assert slam.front_end.counts.rescued_matches >= 2 and errors.max() < 1.0, errors
-    off = override(SlamConfig(), {"front_end.pivot_search_rate": 0.0})
+    off = override(SlamConfig(), {"front_end.recovery.pivot_search_rate": 0.0})
     slam, errors = heading_errors(off, world, path, every_second_scan, 0.5)
     assert errors[5] > 70.0 and errors[7] > 70.0, errors
 
 
 def test_a_stale_reading_is_never_held_to_more_than_a_new_one():
     """Facing a wall 0.6 m off, a scan turned 8° still fits 0.9 of its points where a stale
-    reading predicts no turn: no match can gain the 0.1 of ``odometry_gate_fit`` over it.
-    Judged only so (``odometry_gate_explained`` 1: the test a new reading gets is off), the
+    reading predicts no turn: no match can gain the 0.1 of ``odometry_gate.fit`` over it.
+    Judged only so (``odometry_gate.explained`` 1: the test a new reading gets is off), the
     matches of the turn are refused and the prediction stands, 8° off; judged as against a
     new reading too — the share of the prediction's misses the match fits — they stand
     (docs/method.md §6.1)."""
     errors = pivot_facing_a_near_wall(
-        override(SlamConfig(), {"front_end.odometry_gate_explained": 1.0}))
+        override(SlamConfig(), {"front_end.odometry_gate.explained": 1.0}))
     assert errors.max() > 5.0, errors
     errors = pivot_facing_a_near_wall(SlamConfig())
     assert errors.max() < 1.0, errors

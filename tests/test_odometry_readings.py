@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from swarmslam.runtime.config import SlamConfig
-from swarmslam.runtime.front_end.odometry_readings import OdometryReadings
+from swarmslam.runtime.front_end.odometry_readings import RESTART_GAPS, OdometryReadings
 
 
 def test_a_new_reading_predicts_its_motion_since_the_last_new_one():
@@ -119,7 +119,7 @@ def test_scans_refused_on_the_way_do_not_hide_the_period():
     after each, a reading comes one scan after the one before it. Three gaps of four scans in
     a row outgrow that stray fewest, and the period stays known (a simulated robot survey
     with an 8 m SICK, its scans refused now and then, had lost it for its last 110 s). Never
-    restarted (``front_end.period_restart_gaps`` past the run's gaps), the count stops at the
+    restarted (``RESTART_GAPS`` past the run's gaps), the count stops at the
     stray and the period stays what the gaps before it made (0.86 s)."""
     def known_periods(restart_gaps):
         readings = OdometryReadings(stale_motion=True, periodic_ratio=1.5,
@@ -134,7 +134,7 @@ def test_scans_refused_on_the_way_do_not_hide_the_period():
             known.append(readings.period())
         return np.array(known)
 
-    known = known_periods(SlamConfig().front_end.period_restart_gaps)
+    known = known_periods(RESTART_GAPS)
     assert abs(known[-1] - 0.8) < 0.02, known[-1]
     assert np.mean(known[100:] > 0) > 0.95
     assert abs(known_periods(1000)[-1] - 0.8) > 0.04

@@ -79,8 +79,8 @@ def test_a_saved_fit_restores_and_a_foreign_one_is_refused():
 
 def test_the_limits_must_hold_odometry_as_it_reads():
     for limits in ([1.05, 1.2], [1.0, 1.0]):
-        with pytest.raises(ConfigError, match="odometry_scale_limits"):
-            override(SlamConfig(), {"front_end.odometry_scale_limits": limits})
+        with pytest.raises(ConfigError, match=r"odometry_scale\.limits"):
+            override(SlamConfig(), {"front_end.odometry_scale.limits": limits})
 
 
 def test_the_graph_brings_each_edges_odometry_part_to_a_scale_and_keeps_it_through_copies():
@@ -195,6 +195,6 @@ def test_the_front_end_fits_the_scale_where_the_scans_pin_it_and_notes_odometrys
     again.restore(slam.state())
     assert np.array_equal(again.front_end.calibration.fit.travel, front.calibration.fit.travel)
     assert np.array_equal(again.graph.odometry_part[: g.n_edges], part)
-    off = _corridor(override(SlamConfig(), {"front_end.calibrate_odometry_scale": False}))
+    off = _corridor(override(SlamConfig(), {"front_end.odometry_scale.enabled": False}))
     assert off.front_end.calibration.fit.scale == 1.0
     assert not off.graph.odometry_part.any()

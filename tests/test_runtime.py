@@ -23,6 +23,7 @@ from swarmslam.runtime.config import (
     SlamConfig,
     SwarmConfig,
     override,
+    to_dict,
 )
 from swarmslam.runtime.realtime.fixed_rate import SlamRuntime
 from swarmslam.runtime.realtime.inbox import ScanInbox
@@ -34,7 +35,7 @@ from swarmslam.runtime.realtime.session import SessionError, read_session, write
 from swarmslam.runtime.slam import GraphSlam
 from swarmslam.runtime.realtime.warm_up import LoopDrive
 
-from old_sessions import as_early_version_6, as_version_6
+from old_sessions import as_early_version_6, as_version_6, as_version_7
 from source_layout import copy_installed_layout
 
 # A small swarm budget keeps the long runs quick; the code paths are the same at any budget.
@@ -200,9 +201,9 @@ def test_a_wide_loop_search_is_spread_over_slices_in_the_budgeted_schedule():
     """Budgeted, a wide search runs as many WIDE slices (docs/runtime.md §3), each a part of
     its grid or of its branch and bound, and every search still ends; in lockstep it is one."""
     angles, records = recorded_drive(160)
-    wide = {"loop_closure.wide_after": 1, "loop_closure.wide_min_gap": 1,
-            "loop_closure.wide_radius": 4.0, "loop_closure.wide_slice_cells": 500,
-            "loop_closure.wide_slice_blocks": 20}
+    wide = {"loop_closure.wide_search.after": 1, "loop_closure.wide_search.min_gap": 1,
+            "loop_closure.wide_search.radius": 4.0, "loop_closure.wide_search.slice_cells": 500,
+            "loop_closure.wide_search.slice_blocks": 20}
     counts = {}
     for schedule in ("lockstep", "budgeted"):
         runtime = SlamRuntime(override(with_runtime(QUICK, schedule=schedule), wide), seed=2)
@@ -222,15 +223,15 @@ def test_a_wide_loop_search_is_spread_over_slices_in_the_budgeted_schedule():
 
 def test_after_a_wide_search_that_fits_nowhere_the_next_nodes_are_not_searched_widely():
     """A wide search that finds no pose where the scan fits says the robot is on new ground;
-    the ``wide_spacing`` − 1 nodes after it see much the same and are not searched widely. A
+    the ``wide_search.spacing`` − 1 nodes after it see much the same and are not searched widely. A
     search that fitted the scan somewhere (a rival, no second look yet) is followed at the
     next node, as without the rule (docs/method.md §5, "after a long drift")."""
     angles, records = recorded_drive(160)
-    wide = {"loop_closure.wide_after": 1, "loop_closure.wide_min_gap": 1,
-            "loop_closure.wide_radius": 4.0}
+    wide = {"loop_closure.wide_search.after": 1, "loop_closure.wide_search.min_gap": 1,
+            "loop_closure.wide_search.radius": 4.0}
     searched = {}
     for spacing in (1, 4):
-        runtime = SlamRuntime(override(LOCKSTEP, {**wide, "loop_closure.wide_spacing": spacing}),
+        runtime = SlamRuntime(override(LOCKSTEP, {**wide, "loop_closure.wide_search.spacing": spacing}),
                               seed=2)
         back = runtime.slam.back_end
         log = searched[spacing] = []
@@ -413,6 +414,28 @@ def test_a_version_6_session_resumes_through_its_migration(saved, tmp_path, monk
     monkeypatch.undo()
     with pytest.raises(SessionError, match="version 5 is not supported"):
         SlamRuntime.resume(path)
+
+
+def test_a_version_7_session_with_the_flat_configuration_resumes_as_it_was(saved, tmp_path,
+                                                                           monkeypatch):
+    """Version 7 saved the configuration in its flat names (``odometry_gate_share``,
+    ``wide_after`` = 0 for off, the fixed internals as fields): the migration reads it as this
+    version's tree, the same configuration, and the run resumes on the same map."""
+    runtime, _ = saved
+    changed = override(runtime.config, {"loop_closure.wide_search.enabled": False,
+                                        "front_end.odometry_gate.share": (0.25, 0.3)})
+    state = runtime.state()
+    state["config"] = to_dict(changed)
+    old = as_version_7(state)
+    assert old["config"]["loop_closure"]["wide_after"] == 0
+    assert tuple(old["config"]["front_end"]["odometry_gate_share"]) == (0.25, 0.3)
+    path = tmp_path / "v7.session"
+    monkeypatch.setattr(session, "VERSION", 7)
+    write_session(path, old)
+    monkeypatch.undo()
+    resumed = SlamRuntime.resume(path)
+    assert resumed.config == changed
+    assert np.array_equal(resumed.slam.node_poses(), runtime.slam.node_poses())
 
 
 def test_each_save_keeps_the_previous_good_session(saved, tmp_path):

@@ -10,7 +10,8 @@ from swarmslam.runtime.matching.distance_field import R2, field_lookup
 from swarmslam.runtime.matching.objectives import KERNELS, scan_to_scan_error
 from swarmslam.runtime.pose import between
 from swarmslam.runtime.matching.scan import PointScan
-from swarmslam.runtime.matching.scan_matcher import MatcherConfig, ScanMatcher
+from swarmslam.runtime.matching.scan_matcher import (POLISH_HALVINGS, POLISH_STEP, MatcherConfig,
+                                                     ScanMatcher)
 from swarmslam.runtime.realtime.warm_up import pose_after, room_world, scan_at
 
 ANGLES = np.deg2rad(np.arange(-180, 180, 1.0))  # a 360° RPLidar-like scanner
@@ -205,7 +206,7 @@ def test_polish_settles_a_short_swarm_in_its_basin():
     m = ScanMatcher(MatcherConfig(), seed=0)
     reference = m.build_reference(ref)
     p = m.align_scans(cur, reference, guess)
-    step_xy, step_t = (s / 2**m.config.polish_halvings for s in m.config.polish_step)
+    step_xy, step_t = (s / 2**POLISH_HALVINGS for s in POLISH_STEP)
     for d, step in ((0, step_xy), (1, step_xy), (2, step_t)):
         for sign in (1, -1):
             moved = p.pose.copy()
@@ -237,7 +238,7 @@ def test_seek_headings_finds_the_turn_anywhere_in_the_box(turn, step_deg):
     kernel = KERNELS["cauchy"]
     assert sought.error == scan_to_scan_error(reference.field, reference.meta, cur.buffer,
                                               cur.count, 1, *sought.pose, kernel)
-    step_xy, step_t = (s / 2**m.config.polish_halvings for s in m.config.polish_step)
+    step_xy, step_t = (s / 2**POLISH_HALVINGS for s in POLISH_STEP)
     for d, step in ((0, step_xy), (1, step_xy), (2, step_t)):
         for sign in (1, -1):
             moved = sought.pose.copy()

@@ -171,7 +171,7 @@ def test_the_suites_robot_cases_read_back_from_their_names():
 def test_scans_overrule_stale_odometry_in_fast_turns(tmp_path):
     """A robot whose odometry is read every 0.8 s turning at up to 2 rad/s (the simulator's
     MIT-CSAIL): odometry predicts no motion for four scans, then all of it at once. Trusting
-    odometry over the scans there (``odometry_gate_fit`` and ``odometry_gate_explained`` 1:
+    odometry over the scans there (``odometry_gate.fit`` and ``odometry_gate.explained`` 1:
     the scans never overrule it) leaves heading errors of tens of degrees between scans
     seconds apart; the defaults follow the scans."""
     made = tmp_path / "robot.clf"
@@ -181,8 +181,8 @@ def test_scans_overrule_stale_odometry_in_fast_turns(tmp_path):
     scores = {}
     for name, config in (("defaults", SlamConfig()),
                          ("odometry trusted", override(SlamConfig(), {
-                             "front_end.odometry_gate_fit": 1.0,
-                             "front_end.odometry_gate_explained": 1.0}))):
+                             "front_end.odometry_gate.fit": 1.0,
+                             "front_end.odometry_gate.explained": 1.0}))):
         _, runtime = replay_run(made, config=config, label=name)
         stamps, poses = runtime.slam.trajectory()
         scores[name] = kummerle(stamps, poses, relations)
@@ -199,7 +199,7 @@ def test_a_pivot_crowded_by_people_is_found_on_the_fine_field(tmp_path):
     readings while three people stand 1–3 m in front of it. The swarm picks its basin on the
     coarse field, which their arcs mislead; sought again around every prior, the match stays
     20–30° off. Settled from headings 3° apart across each box on the fine field
-    (``recovery_heading_step``), the lost matches are found (docs/method.md §6.1,
+    (``recovery.heading_step``), the lost matches are found (docs/method.md §6.1,
     "Recovery"); without it (0) a short relation there is off by tens of degrees."""
     made = tmp_path / "robot.clf"
     assert main(["simlog", str(made), "--site", "corridor", "--scanner", "sick-0.5",
@@ -208,7 +208,7 @@ def test_a_pivot_crowded_by_people_is_found_on_the_fine_field(tmp_path):
     relations = read_relations(tmp_path / "robot.relations")
     worst, sought = {}, {}
     for name, config in (("defaults", SlamConfig()), ("off", override(SlamConfig(), {
-            "front_end.recovery_heading_step": 0.0}))):
+            "front_end.recovery.heading_step": 0.0}))):
         _, runtime = replay_run(made, config=config, label=name, seed=67)
         stamps, poses = runtime.slam.trajectory()
         worst[name] = kummerle(stamps, poses, relations)["eR_short_max_deg"]

@@ -22,10 +22,10 @@ from swarmslam.runtime.back_end.wide_loop_search import WideLoopSearch, open_win
 ANGLES = np.linspace(-np.pi, np.pi, 360, endpoint=False)
 # queries of two node scans (a search's separate second look is two or more nodes back), on
 # a grid fine enough for the room's small boxes
-CONFIG = override(SlamConfig(), {"loop_closure.wide_min_gap": 5,
-                                 "loop_closure.wide_query_nodes": 2,
-                                 "loop_closure.wide_resolution": 0.2,
-                                 "loop_closure.wide_radius": 30.0})
+CONFIG = override(SlamConfig(), {"loop_closure.wide_search.min_gap": 5,
+                                 "loop_closure.wide_search.query_nodes": 2,
+                                 "loop_closure.wide_search.resolution": 0.2,
+                                 "loop_closure.wide_search.radius": 30.0})
 DRIFT = np.array([6.0, -4.0, 0.2])  # what a long loop did to the graph's estimate of the return
 
 
@@ -66,7 +66,7 @@ def test_a_return_after_a_long_drift_is_placed_where_its_scan_fits(building):
     found = wide.propose(poses, nodes, 15)  # a separate look (no scan shared) agrees
     assert found is not None and wide.proposed == 1
     anchor, z = found
-    assert anchor < 15 - CONFIG.loop_closure.wide_min_gap
+    assert anchor < 15 - CONFIG.loop_closure.wide_search.min_gap
     placed = compose(truth[anchor], z)  # the old node is where it was mapped
     assert math.hypot(*(placed[:2] - truth[15, :2])) < 0.3
     assert abs(wrap_angle(placed[2] - truth[15, 2])) < 0.03
@@ -125,9 +125,9 @@ def test_a_search_in_slices_proposes_what_one_pass_does(building):
     search takes many slices and ends with the same proposals, grids and counts."""
     world, truth = building
     poses, nodes = graph_of(world, truth, 12)
-    tiny = override(CONFIG, {"loop_closure.wide_slice_cells": 2000,
-                             "loop_closure.wide_slice_nodes": 3,
-                             "loop_closure.wide_slice_blocks": 50}).loop_closure
+    tiny = override(CONFIG, {"loop_closure.wide_search.slice_cells": 2000,
+                             "loop_closure.wide_search.slice_nodes": 3,
+                             "loop_closure.wide_search.slice_blocks": 50}).loop_closure
     runs = {}
     for sliced in (False, True):
         wide = WideLoopSearch(tiny, 64, CONFIG.sensor.max_points, CONFIG.matcher.max_gap)
@@ -167,18 +167,18 @@ def test_the_window_s_levels_are_its_pooled_blocks():
 
 
 def test_the_window_grows_with_the_path_since_the_map_last_held_the_robot(building):
-    """A return drifted farther than ``wide_radius`` lies outside the search's window; with
-    ``wide_drift`` the window grows with the path travelled since the last closure with the
-    old map (up to ``wide_max_radius``) and the return is placed."""
+    """A return drifted farther than ``wide_search.radius`` lies outside the search's window; with
+    ``wide_search.drift`` the window grows with the path travelled since the last closure with the
+    old map (up to ``wide_search.max_radius``) and the return is placed."""
     world, truth = building
     poses, nodes = graph_of(world, truth, 12)
     far = compose([22.0, -12.0, 0.15], DRIFT)  # 27 m off: beyond a 12 m window
     poses[12:] = compose(far, np.array(truth[12:], np.float64))
     outcomes = {}
     for drift in (0.0, 1.0):
-        c = override(CONFIG, {"loop_closure.wide_radius": 12.0,
-                              "loop_closure.wide_max_radius": 40.0,
-                              "loop_closure.wide_drift": drift}).loop_closure
+        c = override(CONFIG, {"loop_closure.wide_search.radius": 12.0,
+                              "loop_closure.wide_search.max_radius": 40.0,
+                              "loop_closure.wide_search.drift": drift}).loop_closure
         wide = WideLoopSearch(c, 64, CONFIG.sensor.max_points, CONFIG.matcher.max_gap)
         radius = wide.radius(poses, 0, 15)
         path = sum(math.hypot(*(poses[k + 1, :2] - poses[k, :2])) for k in range(15))
@@ -193,18 +193,18 @@ def test_the_window_grows_with_the_path_since_the_map_last_held_the_robot(buildi
 
 
 def test_the_headings_searched_grow_with_the_path_too(building):
-    """A return turned farther than ``wide_angle`` is not found; with ``wide_turn_drift`` the
+    """A return turned farther than ``wide_search.angle`` is not found; with ``wide_search.turn_drift`` the
     headings searched grow with the path since the last closure with the old map (up to
-    ``wide_max_angle``) and the return is placed."""
+    ``wide_search.max_angle``) and the return is placed."""
     world, truth = building
     poses, nodes = graph_of(world, truth, 12)
-    turned = compose([0.0, 0.0, 0.45], DRIFT)  # 0.65 rad off: beyond wide_angle's 0.5
+    turned = compose([0.0, 0.0, 0.45], DRIFT)  # 0.65 rad off: beyond wide_search.angle's 0.5
     poses[12:] = compose(turned, np.array(truth[12:], np.float64))
     path = sum(math.hypot(*(poses[k + 1, :2] - poses[k, :2])) for k in range(15))
     outcomes = {}
     for drift in (0.0, 0.05):
-        c = override(CONFIG, {"loop_closure.wide_turn_drift": drift,
-                              "loop_closure.wide_max_angle": 1.0}).loop_closure
+        c = override(CONFIG, {"loop_closure.wide_search.turn_drift": drift,
+                              "loop_closure.wide_search.max_angle": 1.0}).loop_closure
         wide = WideLoopSearch(c, 64, CONFIG.sensor.max_points, CONFIG.matcher.max_gap)
         assert wide.angle(poses, 0, 15) == pytest.approx(
             0.5 if drift == 0 else min(max(0.5, drift * path), 1.0))

@@ -389,16 +389,21 @@ class GaussNewton:
         return OptimizeReport(initial, initial, iterations, time.perf_counter() - t0,
                               self.solver, converged=False)
 
+    # Nielsen's μ₀ as a share of max diag(H), and how many times max_iterations the
+    # Levenberg–Marquardt restart may take: g2o's own choices.
+    LM_INITIAL_DAMPING = 1e-5
+    LM_ITERATION_FACTOR = 10
+
     def _levenberg_marquardt(self):
         """Nielsen's damping: shrink μ by the gain ratio on success, grow it on failure."""
         g = self.graph
         poses = g.poses[: g.n_nodes]
         saved = self._lm_saved[: g.n_nodes]
         b, chi2 = self._system()
-        mu = self.config.lm_initial_damping * float(np.max(self._data[self._diag]))
+        mu = self.LM_INITIAL_DAMPING * float(np.max(self._data[self._diag]))
         nu = 2.0
         iterations = 0
-        for iterations in range(1, self.config.lm_iteration_factor * self.max_iterations + 1):
+        for iterations in range(1, self.LM_ITERATION_FACTOR * self.max_iterations + 1):
             dx = self._solve(b, mu)
             saved[:] = poses
             apply_update(poses, dx)

@@ -13,11 +13,16 @@ import numpy as np
 from swarmslam.runtime.config import SlamConfig
 from swarmslam.runtime.matching.degeneracy import Degeneracy
 from swarmslam.runtime.back_end.loop_closure import LoopCloser, relative_guess, visibility
-from swarmslam.runtime.node_scans import NodeScans
+from swarmslam.runtime.node_scans import BEARING_BINS, NodeScans
 from swarmslam.runtime.pose_graph import PoseGraph
 from swarmslam.runtime.matching.scan import PointScan
-from swarmslam.runtime.matching.scan_matcher import ScanMatcher, beyond_margin
+from swarmslam.runtime.matching.scan_matcher import (BOX_MARGIN, CURVATURE_STEP, INLIER_SLOPE,
+                                                     ScanMatcher, beyond_margin)
 from swarmslam.runtime.back_end.wide_loop_search import WideLoopSearch
+
+# The largest share of the points the submap's scans saw that may lie in space they saw through
+# for a loop match accepted by overlap (a few stray points: glass, a person).
+MAX_VIOLATIONS = 0.03
 
 
 class LoopAlignment:
@@ -38,7 +43,7 @@ class LoopAlignment:
         self._scan = PointScan(points)
         self.submap = PointScan(points * (2 * lc.submap_nodes + 1))
         self._members = np.zeros(2 * lc.submap_nodes + 1, np.int64)  # the submap's nodes
-        self._image = np.zeros(lc.bearing_bins)
+        self._image = np.zeros(BEARING_BINS)
         self._state = np.zeros(points, np.int64)
         self._seen = np.zeros(2, np.int64)
         self._window = np.zeros(3)
@@ -74,8 +79,8 @@ class LoopAlignment:
             window = loops.window(self.graph, self.nodes.cov, candidate, node, self._window)
         # the fine field only for a global stage that ended inside the box
         match = self.matcher.align_inside(scan, submap, self.reference, guess, window,
-                                          c.window_margin)
-        if match is None or beyond_margin(match.pose, guess, window, c.window_margin):
+                                          BOX_MARGIN)
+        if match is None or beyond_margin(match.pose, guess, window, BOX_MARGIN):
             loops.counts.rejected_match += 1  # at or beyond the box
             return None
         pose, reference = match.pose, self.reference
@@ -83,7 +88,7 @@ class LoopAlignment:
         ratio = self.config.front_end.degeneracy_ratio
         if ratio > 0:  # along a corridor the guess stands in, the edge weak there
             fc = self.config.front_end
-            h = self.matcher.curvature(scan, reference, pose, fc.curvature_step)
+            h = self.matcher.curvature(scan, reference, pose, CURVATURE_STEP)
             degeneracy = Degeneracy(h, ratio, fc.degenerate_information)
             pose = degeneracy.remap(pose, guess)
             # An ordinary search's guess is the graph's own estimate: along the axis the edge
@@ -100,15 +105,15 @@ class LoopAlignment:
         loops = self.loops
         c = loops.config
         inliers = self.matcher.inlier_fraction(scan, reference, pose, c.inlier_distance,
-                                               c.inlier_slope)
+                                               INLIER_SLOPE)
         seen = self._seen  # both tests always run: one cost per attempt, every kernel warm
         visibility(self.nodes.points, self.nodes.counts, self.graph.poses, members, n_members,
                    candidate, scan.buffer, scan.count, float(pose[0]), float(pose[1]),
-                   float(pose[2]), c.inlier_distance, c.inlier_slope, self._image, self._state,
+                   float(pose[2]), c.inlier_distance, INLIER_SLOPE, self._image, self._state,
                    seen)
         on, through = int(seen[0]), int(seen[1])
         if inliers >= c.min_inliers or (on >= c.min_overlap * scan.count
-                                        and through <= c.max_violations * (on + through)):
+                                        and through <= MAX_VIOLATIONS * (on + through)):
             return pose
         loops.counts.rejected_match += 1
         return None

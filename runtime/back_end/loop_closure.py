@@ -33,6 +33,11 @@ from swarmslam.runtime.config import LoopClosureConfig
 from swarmslam.runtime.node_scans import polar_image
 from swarmslam.runtime.pose import between, compose, wrap_angle
 
+POSITION_FLOOR = 0.1  # m: the least std of the relative position in the candidates' gate
+# m, rad: how near two agreeing loops must place the node (agreement)
+AGREEMENT_DISTANCE = 0.1
+AGREEMENT_ANGLE = 0.02
+
 CHI2_2D_95 = 5.991
 
 
@@ -137,7 +142,7 @@ class LoopCloser:
         n = nearby_nodes(graph.poses, graph.n_nodes, p[0], p[1], c.search_radius,
                          node - c.exclude_recent, self._idx, self._d2)
         gated = []
-        floor = c.position_floor**2
+        floor = POSITION_FLOOR**2
         for k in self._idx[:n]:
             # Relative covariance along the chain from k to node (both from node 0).
             rel = node_cov[node, :2, :2] - node_cov[k, :2, :2]
@@ -218,20 +223,20 @@ class VerdictMemory:
     def agrees(self, refused, graph, candidate: int, node: int, z) -> bool:
         """Whether the loop ``candidate`` → ``node`` (measurement ``z``) agrees with one
         refused before (``refused``: :attr:`rise_refused` or :attr:`strained`): made from a
-        node at most ``agreement_nodes`` before ``node``, and placing ``node`` within
-        ``agreement_distance`` and ``agreement_angle`` of where this one does, through the
+        node at most ``agreement.nodes`` before ``node``, and placing ``node`` within
+        ``AGREEMENT_DISTANCE`` and ``AGREEMENT_ANGLE`` of where this one does, through the
         graph's short chains between the two nodes and between the two candidates. Two scans
         matched apart that put the robot in the same place of the old map are evidence that
         the drift the rise measures is real, or that a kept loop the two contradict is not."""
-        c = self.config
+        c = self.config.agreement
         old, was = int(refused[0]), int(refused[1])
-        if old < 0 or not 0 < node - was <= c.agreement_nodes:
+        if old < 0 or not c.enabled or not 0 < node - was <= c.nodes:
             return False
         p = graph.poses
         there = compose(compose(p[old], refused[2:]), between(p[node], p[was]))
         here = compose(p[candidate], z)
-        return bool(math.hypot(here[0] - there[0], here[1] - there[1]) <= c.agreement_distance
-                    and abs(wrap_angle(here[2] - there[2])) <= c.agreement_angle)
+        return bool(math.hypot(here[0] - there[0], here[1] - there[1]) <= AGREEMENT_DISTANCE
+                    and abs(wrap_angle(here[2] - there[2])) <= AGREEMENT_ANGLE)
 
     @staticmethod
     def remember(refused, candidate: int, node: int, z) -> None:

@@ -22,6 +22,8 @@ from swarmslam.runtime.pose_graph import LOOP, PoseGraph
 from swarmslam.runtime.back_end.sparse_ldl import FactorCapacityError
 
 EDGES_FULL_STATUS = "capacity reached: no more loop closures"
+# A kept loop is given up for two that agree only when they raise its eᵀΩe by more than this.
+MIN_STRAIN = 1.0
 
 
 class ClosureTrial:
@@ -32,7 +34,7 @@ class ClosureTrial:
         self.memory = VerdictMemory(config.loop_closure)
         self._saved_poses = np.zeros((graph.max_nodes, 3))
         self._chi2_before = np.zeros(graph.max_edges)
-        self._given_up = np.zeros(max(config.loop_closure.max_given_up, 1), np.int64)
+        self._given_up = np.zeros(max(config.loop_closure.agreement.max_given_up, 1), np.int64)
         self.status = "ok"
 
     def edges_full(self) -> bool:
@@ -97,8 +99,8 @@ class ClosureTrial:
         """Two loops the graph could not absorb, the last one refused so
         (:attr:`VerdictMemory.strained`) and ``candidate`` → ``node`` which agrees with it,
         tried together (CLOSE slices, a generator returning the old end, −1 unless both were
-        kept): the kept loop whose error the two raise the most (by more than ``min_strain``)
-        is given up and the trial optimised again, up to ``max_given_up`` loops, until the
+        kept): the kept loop whose error the two raise the most (by more than ``MIN_STRAIN``)
+        is given up and the trial optimised again, up to ``agreement.max_given_up`` loops, until the
         graph absorbs both and raises no kept loop's error by more than ``chi2_gate``; both are
         kept when the rest of the graph's total rose by at most a consistent constraint's
         ``total_gate`` each (two the graph absorbs with none given up are refused, as each was
@@ -106,8 +108,8 @@ class ClosureTrial:
         corner, otherwise refuses every right closure of the place after it: the map holds the
         corridor twice."""
         g, trial, loops, memory = self.graph, self.trial, self.loops, self.memory
-        c = loops.config
-        if c.max_given_up <= 0 or g.n_edges + 2 > g.max_edges:
+        c, most = loops.config, loops.config.agreement.max_given_up
+        if most <= 0 or g.n_edges + 2 > g.max_edges:
             return -1
         n, m = g.n_nodes, g.n_edges
         before = self._chi2_before[:m]
@@ -128,7 +130,7 @@ class ClosureTrial:
             if not settled:
                 return -1
             chi2 = trial.edge_chi2()
-            strained, strain = -1, c.min_strain
+            strained, strain = -1, MIN_STRAIN
             for k in range(m):  # the kept loop the two strain most (one given up has no Ω)
                 if (trial.kind[k] == LOOP and trial.info[k, 2, 2] > 0.0
                         and chi2[k] - before[k] > strain):
@@ -136,7 +138,7 @@ class ClosureTrial:
             if (chi2[first] <= c.chi2_gate and chi2[edge] <= c.chi2_gate
                     and (strained < 0 or strain <= c.chi2_gate)):
                 break
-            if strained < 0 or count == c.max_given_up:
+            if strained < 0 or count == most:
                 return -1
             trial.info[strained] = 0.0
             self._given_up[count] = strained

@@ -11,14 +11,14 @@ Each new node joins a queue of fixed capacity. Its search then runs as a chain o
   graph with the edge, one Gauss–Newton step per slice in the budgeted schedule, then keep the
   edge and the new poses (the consistency test) or drop them;
 * ``WIDE``: when the node's candidates gave nothing and no closure with an old node was kept
-  for ``wide_after`` nodes, the wide search (:mod:`swarmslam.runtime.back_end.wide_loop_search`) over the old nodes'
+  for ``wide_search.after`` nodes, the wide search (:mod:`swarmslam.runtime.back_end.wide_loop_search`) over the old nodes'
   map; its proposal, if any, is aligned and closed as a candidate is. In the budgeted schedule
   the search is itself a chain of WIDE slices (a part of its grid rendered or pooled, a share
   of its branch and bound), so that a wide window does not overrun a tick.
 
 ``work(clock, None)`` — the lockstep schedule — runs every pending slice now, so the whole of
 Alg. 7 happens in the tick that added the node. ``work(clock, budget_end)`` runs a slice only
-if its expected cost — the largest it took lately, fading by ``slice_cost_decay`` per tick —
+if its expected cost — the largest it took lately, fading by ``SLICE_COST_DECAY`` per tick —
 fits before ``budget_end``; otherwise it waits for the next tick (counted as deferred), and
 after ``max_deferred_ticks`` runs anyway (counted as forced): late, never lost. A full queue
 drops its oldest node's search (counted; the runtime's status says so).
@@ -37,10 +37,15 @@ from swarmslam.runtime.back_end.loop_trial import ClosureTrial
 from swarmslam.runtime.node_scans import NodeScans
 from swarmslam.runtime.pose_graph import LOOP, PoseGraph
 from swarmslam.runtime.tallies import restore_counts
-from swarmslam.runtime.back_end.wide_loop_search import WideLoopSearch
+from swarmslam.runtime.back_end.wide_loop_search import WIDE_REFINE_WINDOW, WideLoopSearch
 
 SELECT, ALIGN, CLOSE, WIDE = 0, 1, 2, 3
 SLICE_NAMES = ("select", "align", "close", "wide")
+# A slice kind's expected cost: its largest lately, fading by SLICE_COST_DECAY per tick (one
+# slow outlier is soon forgotten); a measured cost replaces it unless SLICE_COST_MEMORY × the
+# estimate is larger.
+SLICE_COST_DECAY = 0.97
+SLICE_COST_MEMORY = 0.95
 
 
 @dataclass
@@ -91,9 +96,9 @@ class BackEnd:
         self._wide_steps = None  # the wide search under way (WideLoopSearch.search), if any
         self._closing = None  # the closure on trial (ClosureTrial.steps), if any
         self.guess = np.zeros(3)  # the proposal: the node's pose in the candidate's frame
-        self._wide_window = np.asarray(lc.wide_refine_window, dtype=np.float64)
-        self.last_closure = 0  # the last node closed with an old one (wide_min_gap back)
-        self.wide_from = 0  # the first node a wide search may run at (wide_spacing after one
+        self._wide_window = np.asarray(WIDE_REFINE_WINDOW, dtype=np.float64)
+        self.last_closure = 0  # the last node closed with an old one (wide_search.min_gap back)
+        self.wide_from = 0  # the first node a wide search may run at (wide_search.spacing after one
         # that fitted its scan nowhere)
         self.cost = np.zeros(len(SLICE_NAMES))  # expected seconds per slice kind (decaying max)
         self.waited = 0  # ticks the next slice has been deferred in a row
@@ -131,7 +136,7 @@ class BackEnd:
         rc = self.config.runtime
         ran = 0
         if budget_end is not None:
-            self.cost *= rc.slice_cost_decay  # one slow outlier is soon forgotten
+            self.cost *= SLICE_COST_DECAY  # one slow outlier is soon forgotten
         while self.pending():
             kind = self.phase if self.node >= 0 else SELECT
             start = clock() if budget_end is not None else 0.0
@@ -147,7 +152,7 @@ class BackEnd:
             ran += 1
             if budget_end is not None:
                 took = clock() - start
-                self.cost[kind] = max(took, rc.slice_cost_memory * self.cost[kind])
+                self.cost[kind] = max(took, SLICE_COST_MEMORY * self.cost[kind])
         return ran
 
     def _run_slice(self, kind: int, sliced: bool = False) -> None:
@@ -214,7 +219,7 @@ class BackEnd:
             return  # the search goes on in the next WIDE slice
         self._wide_steps = None
         if self.wide.fitted == 0:  # new ground: the next nodes see much the same
-            self.wide_from = self.node + self.loops.config.wide_spacing
+            self.wide_from = self.node + self.loops.config.wide_search.spacing
         if proposal is None:
             self._finish()
             return
@@ -228,7 +233,7 @@ class BackEnd:
         if old_end < 0:
             return False
         self.revision += 1
-        if node - old_end >= self.loops.config.wide_min_gap:  # a closure with the old map
+        if node - old_end >= self.loops.config.wide_search.min_gap:  # a closure with the old map
             self.last_closure = node
         return True
 
@@ -270,11 +275,11 @@ class BackEnd:
 
     def _exhausted(self) -> None:
         """The node's candidates gave nothing: search widely if a long drift may hide its loop
-        (no closure with an old node kept for ``wide_after`` nodes), else the search is
+        (no closure with an old node kept for ``wide_search.after`` nodes), else the search is
         done."""
-        lc = self.loops.config
-        if (not self.widened and lc.wide_after > 0
-                and self.node - self.last_closure >= lc.wide_after
+        wide = self.loops.config.wide_search
+        if (not self.widened and wide.enabled
+                and self.node - self.last_closure >= wide.after
                 and self.node >= self.wide_from):
             self.widened = True
             self.phase = WIDE

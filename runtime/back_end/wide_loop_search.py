@@ -5,24 +5,24 @@ After a long stretch with no closure the graph's estimate of a node returning to
 may be many metres off — farther than the loop match's box (``search_window``) and the
 candidate radius reach (metres after a long loop). The ordinary search then finds
 nothing, or matches the scan to the wrong corridor nearby. Here the scans of the *old* nodes
-(more than ``wide_min_gap`` nodes back, within reach of the estimate) are rendered into a hit
+(more than ``wide_search.min_gap`` nodes back, within reach of the estimate) are rendered into a hit
 grid centred on the estimate, and an exhaustive branch and bound (the relocalization's,
 :func:`swarmslam.runtime.matching.place_search.branch_and_bound`) scores the node's scan at every position within
-the window and every heading within ``wide_angle`` of it. The window's half-width grows with
-the path since the last closure with the old map (``wide_drift`` of it, from ``wide_radius``
-up to ``wide_max_radius``), and so do the headings (``wide_turn_drift`` of it, from
-``wide_angle`` up to ``wide_max_angle``): the farther the robot went unanchored, the farther
+the window and every heading within ``wide_search.angle`` of it. The window's half-width grows with
+the path since the last closure with the old map (``wide_search.drift`` of it, from ``wide_search.radius``
+up to ``wide_search.max_radius``), and so do the headings (``wide_search.turn_drift`` of it, from
+``wide_search.angle`` up to ``wide_search.max_angle``): the farther the robot went unanchored, the farther
 it may have drifted and turned. The best pose is a *proposal* only if
 
-* it scores at least ``wide_min_score`` (mean hit value),
-* no distinct pose (farther than ``wide_distinct_distance``) scores ``wide_ratio`` of it — in a
+* it scores at least ``wide_search.min_score`` (mean hit value),
+* no distinct pose (farther than ``DISTINCT_DISTANCE``) scores ``RIVAL_RATIO`` of it — in a
   corridor every position along it fits, and a closure there would be a guess,
 * it lies inside the window, not on its edge (the optimum could lie beyond),
-* a search whose query shares no scan with this one (of a node ``wide_query_nodes`` to twice
+* a search whose query shares no scan with this one (of a node ``wide_search.query_nodes`` to twice
   that many back) found the same correction of the graph (the best pose less the
-  estimate) within ``wide_agreement``: two separate looks agree on where the robot is.
+  estimate) within ``AGREEMENT``: two separate looks agree on where the robot is.
 
-A search that fits the scan nowhere (new ground) spares the next ``wide_spacing`` − 1 nodes
+A search that fits the scan nowhere (new ground) spares the next ``wide_search.spacing`` − 1 nodes
 their wide search (the back end's rule, ``fitted`` says it).
 
 The proposal then goes through the rest of the loop closure — the swarm's alignment against
@@ -58,6 +58,23 @@ from swarmslam.runtime.matching.place_search import (
     splat_scans,
 )
 from swarmslam.runtime.pose import between_nb, compose_nb, wrap_angle_nb
+
+# The search's internals, fixed: its scores and pyramid as measured (docs/method.md §5, step 5).
+HIT_SIGMA = 0.2  # m: a point this far from a surface scores e^(-1/2)
+# m: a run of a node scan's joined points is drawn as one segment while it passes this near
+# every point it skips (0 would draw one segment per pair of points)
+SURFACE_TOLERANCE = 0.04
+LEVELS = 6  # pyramid levels above the hit grid (blocks of 2^LEVELS cells)
+QUERY_RANGE = 12.0  # m: the query's points farther from the node are not used (sets the step)
+QUERY_POINTS = 128  # query points at most (thinned evenly)
+# A distinct pose (farther than DISTINCT_DISTANCE m) scoring RIVAL_RATIO of the best makes the
+# search refuse: in a corridor or a repeated room every such pose fits.
+RIVAL_RATIO = 0.9
+DISTINCT_DISTANCE = 1.0
+# m, rad: a proposal needs a search sharing no scan with its own to have found the same
+# correction of the graph within these
+AGREEMENT = (0.5, 0.05)
+WIDE_REFINE_WINDOW = (0.3, 0.3, 0.05)  # half-widths of the swarm's alignment around a proposal
 from swarmslam.runtime.matching.scan import PointScan
 
 
@@ -136,10 +153,10 @@ class WideLoopSearch:
                  max_gap: float):
         c = self.config = config
         self.max_gap = max_gap
-        levels = c.wide_levels
+        levels = LEVELS
         # Buffers for the widest window; each search works on the leading part its own
         # window needs, viewed as grids of that size (_use).
-        self.widest = max(c.wide_radius, c.wide_max_radius)
+        self.widest = max(c.wide_search.radius, c.wide_search.max_radius)
         _, n = self._extent(self.widest)
         self._pyramid_buffer = np.zeros((levels + 2) * n * n, np.uint8)
         self._d2_buffer = np.zeros(n * n)
@@ -147,18 +164,18 @@ class WideLoopSearch:
         self._bounds_buffer = np.zeros((levels + 1) * n * n, np.uint8)
         self._free_buffer = np.zeros((levels + 1) * n * n, np.uint8)
         self._n = 0
-        self._use(c.wide_radius)
+        self._use(c.wide_search.radius)
         self.groups = np.ones(levels + 1, np.int64)  # one heading per block at every level
         self.shifts = np.zeros(levels + 1, np.int64)
-        res = c.wide_resolution
-        self.step = heading_step(res, c.wide_query_range)
-        self.widest_angle = max(c.wide_angle, c.wide_max_angle)
+        res = c.wide_search.resolution
+        self.step = heading_step(res, QUERY_RANGE)
+        self.widest_angle = max(c.wide_search.angle, c.wide_search.max_angle)
         most = self._headings(self.widest_angle)
-        self.n_headings = self._headings(c.wide_angle)  # the search under way's
+        self.n_headings = self._headings(c.wide_search.angle)  # the search under way's
         self._query = np.zeros((max_points, 2))
-        self._recent = PointScan(max_points * c.wide_query_nodes)
-        self._turned = np.zeros((c.wide_query_points, 2))
-        self._offsets = np.zeros((most, c.wide_query_points, 2), np.int64)
+        self._recent = PointScan(max_points * c.wide_search.query_nodes)
+        self._turned = np.zeros((QUERY_POINTS, 2))
+        self._offsets = np.zeros((most, QUERY_POINTS, 2), np.int64)
         self._offset_box = np.zeros((most, 4), np.int64)
         self._roots = np.zeros((most * (-(-n // (1 << levels))) ** 2, 5), np.int64)
         self._stack = np.zeros((8 * (levels + 2), 5), np.int64)
@@ -166,17 +183,17 @@ class WideLoopSearch:
         self._found = np.zeros((2, 4), np.int64)  # the best and one rival are all we need
         self._index = np.zeros(max_nodes, np.int64)
         self._member_d2 = np.zeros(2 * c.submap_nodes + 1)
-        self.cell_radius = int(math.ceil(c.wide_distinct_distance / res))
+        self.cell_radius = int(math.ceil(DISTINCT_DISTANCE / res))
         self.searches = 0  # searches run (old nodes within reach)
-        self.fitted = 0  # distinct poses (0-2) the last search found scoring wide_min_score
+        self.fitted = 0  # distinct poses (0-2) the last search found scoring wide_search.min_score
         self.proposed = 0  # proposals made
         self.ambiguous = 0  # refused: a distinct pose scored nearly as well
         self.at_edge = 0  # refused: the best lay on the window's edge
         self.disagreed = 0  # refused: no earlier, separate search found the same correction
         # the last unique bests: their nodes (-1: none) and the corrections they found, kept
-        # for as far back as a disjoint query's search may lie (2 × wide_query_nodes)
-        self.recent_nodes = np.full(2 * c.wide_query_nodes, -1, np.int64)
-        self.recent_corrections = np.zeros((2 * c.wide_query_nodes, 3))
+        # for as far back as a disjoint query's search may lie (2 × wide_search.query_nodes)
+        self.recent_nodes = np.full(2 * c.wide_search.query_nodes, -1, np.int64)
+        self.recent_corrections = np.zeros((2 * c.wide_search.query_nodes, 3))
         self._next = 0  # the slot the next unique best goes to
         self._z = np.zeros(3)  # the proposal's relative pose
 
@@ -185,19 +202,19 @@ class WideLoopSearch:
         window, the query's reach beyond it and the hit blur, plus one top block so that a root
         block starting before the window still lies on the grid."""
         c = self.config
-        reach = radius + c.wide_query_range + 3.0 * c.wide_hit_sigma
-        half = int(math.ceil(reach / c.wide_resolution)) + (1 << c.wide_levels)
+        reach = radius + QUERY_RANGE + 3.0 * HIT_SIGMA
+        half = int(math.ceil(reach / c.wide_search.resolution)) + (1 << LEVELS)
         return half, 2 * half + 1
 
     def _use(self, radius: float) -> None:
         """Work on a window of ``radius``: views of the leading part of each buffer."""
         c = self.config
-        self.cells = int(math.floor(radius / c.wide_resolution))
+        self.cells = int(math.floor(radius / c.wide_search.resolution))
         half, n = self._extent(radius)
         if n == self._n:
             return
         self.half, self._n = half, n
-        levels = c.wide_levels
+        levels = LEVELS
         self._pyramid = self._pyramid_buffer[: (levels + 2) * n * n].reshape(levels + 2, n, n)
         self._d2 = self._d2_buffer[: n * n].reshape(n, n)
         self.bounds = self._bounds_buffer[: (levels + 1) * n * n].reshape(levels + 1, n, n)
@@ -208,26 +225,26 @@ class WideLoopSearch:
         return 2 * int(math.ceil(angle / self.step)) + 1
 
     def angle(self, poses, since: int, node: int) -> float:
-        """The headings searched either side of ``node``'s estimate: ``wide_turn_drift`` of the
-        path since node ``since``, within ``wide_angle`` and ``wide_max_angle`` — a long loop
+        """The headings searched either side of ``node``'s estimate: ``wide_search.turn_drift`` of the
+        path since node ``since``, within ``wide_search.angle`` and ``wide_search.max_angle`` — a long loop
         turns the heading's estimate as it moves its position."""
         c = self.config
-        wanted = c.wide_turn_drift * path_length(poses, since, node)
-        return min(max(c.wide_angle, wanted), self.widest_angle)
+        wanted = c.wide_search.turn_drift * path_length(poses, since, node)
+        return min(max(c.wide_search.angle, wanted), self.widest_angle)
 
     def radius(self, poses, since: int, node: int) -> float:
-        """The window's half-width for ``node``: ``wide_drift`` of the path the graph travelled
-        since node ``since`` (the last closure with the old map), within ``wide_radius`` and
-        ``wide_max_radius``. The farther the robot went unanchored, the farther its estimate
+        """The window's half-width for ``node``: ``wide_search.drift`` of the path the graph travelled
+        since node ``since`` (the last closure with the old map), within ``wide_search.radius`` and
+        ``wide_search.max_radius``. The farther the robot went unanchored, the farther its estimate
         may have drifted."""
         c = self.config
-        wanted = c.wide_drift * path_length(poses, since, node)
-        return min(max(c.wide_radius, wanted), self.widest)
+        wanted = c.wide_search.drift * path_length(poses, since, node)
+        return min(max(c.wide_search.radius, wanted), self.widest)
 
     def propose(self, poses, nodes, node: int, since: int = 0):
         """``(anchor, z)``: the old node nearest to where ``node``'s scan fits, and ``node``'s
         pose in that node's frame — or None (no old node within reach, no pose scoring
-        ``wide_min_score``, a rival, the best on the window's edge, or no earlier, separate
+        ``wide_search.min_score``, a rival, the best on the window's edge, or no earlier, separate
         search finding the same correction). ``since``: the last node closed with the old
         map, from which the window's drift is reckoned (:meth:`radius`)."""
         steps = self.search(poses, nodes, node, since)
@@ -239,42 +256,42 @@ class WideLoopSearch:
 
     def search(self, poses, nodes, node: int, since: int = 0, sliced: bool = False):
         """:meth:`propose` as a generator that yields between slices and returns the proposal.
-        ``sliced``: each slice renders or pools about ``wide_slice_cells`` cells, splats
-        ``wide_slice_nodes`` node scans or scores ``wide_slice_blocks`` branch-and-bound blocks,
+        ``sliced``: each slice renders or pools about ``wide_search.slice_cells`` cells, splats
+        ``wide_search.slice_nodes`` node scans or scores ``wide_search.slice_blocks`` branch-and-bound blocks,
         so that the fixed-rate runtime can spread a search over ticks (docs/runtime.md §3);
         otherwise each pass is one slice. Either way the proposal is the same. ``poses`` and
         the nodes' scans must stay as they are until it returns."""
         c = self.config
-        res = c.wide_resolution
+        res = c.wide_search.resolution
         self.fitted = 0
-        old = node - c.wide_min_gap
+        old = node - c.wide_search.min_gap
         if old <= 0:
             return None
         radius = self.radius(poses, since, node)
         x, y, t = float(poses[node, 0]), float(poses[node, 1]), float(poses[node, 2])
-        n_old = nodes_within(poses, old, x, y, radius + c.wide_query_range, self._index)
+        n_old = nodes_within(poses, old, x, y, radius + QUERY_RANGE, self._index)
         # the query: the node's scan and its predecessors' placed by the graph, a stretch of
         # path whose extent tells one corridor from another where one scan cannot
-        recent = nodes.place(poses, range(max(node - c.wide_query_nodes + 1, 0), node + 1),
+        recent = nodes.place(poses, range(max(node - c.wide_search.query_nodes + 1, 0), node + 1),
                              node, self._recent)
-        n_query = select_query(recent.buffer, recent.count, c.wide_query_range, res,
-                               c.wide_query_points, self._query)
+        n_query = select_query(recent.buffer, recent.count, QUERY_RANGE, res,
+                               QUERY_POINTS, self._query)
         if n_old == 0 or n_query < 3:
             return None
         self._use(radius)
         angle = self.angle(poses, since, node)
         self.n_headings = self._headings(angle)
-        half, n, sigma = self.half, self._n, c.wide_hit_sigma
-        rows = max(c.wide_slice_cells // n, 1) if sliced else n
+        half, n, sigma = self.half, self._n, HIT_SIGMA
+        rows = max(c.wide_search.slice_cells // n, 1) if sliced else n
         ox, oy = x - half * res, y - half * res  # the estimate is cell (half, half)
         # the old nodes' hit grid, its pyramid and the bounds on it, the window's levels
         yield from _in_parts(n, rows, clear_distances, self._d2, sigma)
-        per_slice = c.wide_slice_nodes if sliced else n_old
+        per_slice = c.wide_search.slice_nodes if sliced else n_old
         for first in range(0, n_old, per_slice):
             splat_scans(nodes.points, nodes.counts, poses, self._index, first,
-                        min(first + per_slice, n_old), c.wide_query_range + radius,
+                        min(first + per_slice, n_old), QUERY_RANGE + radius,
                         self.max_gap, ox, oy, res, sigma, self._d2, self._columns,
-                        c.wide_surface_tolerance)
+                        SURFACE_TOLERANCE)
             yield
         yield from _in_parts(n, rows, hits_from_distances, self._d2, sigma, self._pyramid[0])
         for h in range(1, self._pyramid.shape[0]):
@@ -287,14 +304,14 @@ class WideLoopSearch:
         turn_points(self._query, n_query, start, self._turned)
         rotate_query(self._turned, n_query, res, self.step, self.n_headings, self._offsets,
                      self._offset_box)
-        min_score = int(math.ceil(c.wide_min_score * HIT_MAX * n_query))
+        min_score = int(math.ceil(c.wide_search.min_score * HIT_MAX * n_query))
         self._search_state[S_PHASE] = 0
         while True:
             n_found, _, done = branch_and_bound(
                 self.bounds, self.shifts, self.groups, self.free, self._offsets,
-                self._offset_box, n_query, self.n_headings, min_score, c.wide_ratio,
+                self._offset_box, n_query, self.n_headings, min_score, RIVAL_RATIO,
                 self.cell_radius, self.n_headings, self._roots, self._stack, self._found,
-                self._search_state, c.wide_slice_blocks if sliced else UNLIMITED)
+                self._search_state, c.wide_search.slice_blocks if sliced else UNLIMITED)
             if done:
                 break
             yield
@@ -327,11 +344,11 @@ class WideLoopSearch:
 
     def _agrees(self, node, x, y, t, bx, by, bt) -> bool:
         """Whether a search whose query shares no scan with ``node``'s — of a node
-        ``wide_query_nodes`` to twice that many back — found a correction that puts the
-        estimate ``(x, y, t)`` within ``wide_agreement`` of the best ``(bx, by, bt)``: two
+        ``wide_search.query_nodes`` to twice that many back — found a correction that puts the
+        estimate ``(x, y, t)`` within ``AGREEMENT`` of the best ``(bx, by, bt)``: two
         separate looks agree on where the robot is."""
-        q = self.config.wide_query_nodes
-        distance, angle = self.config.wide_agreement
+        q = self.config.wide_search.query_nodes
+        distance, angle = AGREEMENT
         for k in range(len(self.recent_nodes)):
             if not node - 2 * q <= self.recent_nodes[k] <= node - q:
                 continue
@@ -348,8 +365,8 @@ class WideLoopSearch:
         s = math.sin(poses[anchor, 2])
         x = poses[anchor, 0] + c * z[0] - s * z[1]
         y = poses[anchor, 1] + s * z[0] + c * z[1]
-        reach = self.config.wide_radius + self.config.wide_query_range
-        return nearby_nodes(poses, node, x, y, reach, node - self.config.wide_min_gap, out,
+        reach = self.config.wide_search.radius + QUERY_RANGE
+        return nearby_nodes(poses, node, x, y, reach, node - self.config.wide_search.min_gap, out,
                             self._member_d2[: out.shape[0]])
 
     def counts(self) -> dict:
@@ -372,6 +389,6 @@ class WideLoopSearch:
                 or np.any(nodes < -1) or not np.all(np.isfinite(corrections))
                 or not 0 <= int(state["next"]) < len(nodes)):
             raise ValueError("the wide loop search's recent corrections are not ones it makes "
-                             "(another wide_query_nodes?)")
+                             "(another wide_search.query_nodes?)")
         self.recent_nodes[:], self.recent_corrections[:] = nodes, corrections
         self._next = int(state["next"])

@@ -70,12 +70,16 @@ _MAD_VARIANCE = 2.7
 
 @dataclass(frozen=True)
 class BetweenSmoothing:
-    """What the smoothing needs of the configuration (``FrontEndConfig``'s ``between_*``
-    fields)."""
+    """The smoothing's rules: ``min_pairs`` is ``front_end.between_scans.min_pairs``; the
+    others are fixed here."""
 
+    # standard errors by which a between-scan match's estimated noise must exceed 0 before
+    # odometry's motion is taken in (its lower bound is what is used)
     significance: float = 2.0
+    # σ: odometry's motion between two scans that disagrees with their matches by more is not
+    # taken in (a slipping wheel, a stamp out of step in a turn)
     gate: float = 4.0
-    min_pairs: int = 30
+    min_pairs: int = 30  # pairs of scans each kind of pair needs before its noise is estimated
 
 
 @dataclass(frozen=True)

@@ -12,10 +12,10 @@ from __future__ import annotations
 import numpy as np
 
 from swarmslam.runtime.config import SlamConfig
-from swarmslam.runtime.node_scans import NodeScans
+from swarmslam.runtime.node_scans import BEARING_BINS, NodeScans
 from swarmslam.runtime.pose_graph import PoseGraph
 from swarmslam.runtime.matching.scan import PointScan
-from swarmslam.runtime.matching.scan_matcher import ScanMatcher
+from swarmslam.runtime.matching.scan_matcher import INLIER_SLOPE, ScanMatcher
 
 
 class KeyframeSubmap:
@@ -31,7 +31,7 @@ class KeyframeSubmap:
         self.poses = np.zeros((k, 3))
         self.n = 0
         # work buffers of the moved points' test: a range image and a placement per node scan
-        self._images = np.zeros((k, config.loop_closure.bearing_bins))
+        self._images = np.zeros((k, BEARING_BINS))
         self._placed = np.zeros((k, 4))
 
     def rebuild(self, keyframe: int, placed: bool = False) -> None:
@@ -54,7 +54,7 @@ class KeyframeSubmap:
         m = self.n  # the kept poses are rows 0..m-1, the keyframe's the last
         if c.drop_moved_points:
             return self.nodes.place_unmoved(self.poses, self.members[:m], m - 1, self.scan,
-                                            c.track_inlier_distance, c.track_inlier_slope,
+                                            c.track_inlier_distance, INLIER_SLOPE,
                                             self._images, self._placed)
         return self.nodes.place(self.poses, self.members[:m], m - 1, self.scan, rows=range(m))
 

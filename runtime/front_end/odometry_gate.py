@@ -24,7 +24,19 @@ import numpy as np
 from swarmslam.runtime.config import FrontEndConfig
 from swarmslam.runtime.pose import between, wrap_angle
 from swarmslam.runtime.matching.scan import PointScan
-from swarmslam.runtime.matching.scan_matcher import MatchResult, ScanMatcher
+from swarmslam.runtime.matching.scan_matcher import INLIER_SLOPE, MatchResult, ScanMatcher
+
+# m: against a new reading, a match's fit and odometry's prediction's count the points this
+# near a surface: narrower than track_inlier_distance, which tells a lost match, it tells two
+# poses a few degrees apart.
+OVERRULE_DISTANCE = 0.15
+# The previous-scan check applies only where odometry's prediction fits at least this share of
+# the points on the previous scan's surfaces: the previous scan vouches for the prediction
+# where the two overlap.
+PREVIOUS_SCAN_FIT = 0.75
+# rad, σ of odometry's heading over a step (plus the gate's heading share of its turn): the
+# heading prior's unit.
+HEADING_SIGMA = math.radians(1.0)
 
 
 @dataclass
@@ -58,9 +70,9 @@ def contradicts_odometry(pose, guess, step, config: FrontEndConfig,
     """The odometry gate: ``pose`` (a match) corrects ``guess`` (odometry's prediction, in the
     same frame; ``step`` the motion it predicted over) by more than odometry errs over that
     motion; ``heading``, ``position``: which of the two are judged."""
-    if config.odometry_gate is None:
+    if not config.odometry_gate.enabled:
         return False
-    gate, share = config.odometry_gate, config.odometry_gate_share
+    gate, share = config.odometry_gate.tolerance, config.odometry_gate.share
     correction = between(pose, guess)
     allowed = gate[0] + share[0] * math.hypot(step[0], step[1])
     return bool((position and math.hypot(correction[0], correction[1]) > allowed)
@@ -70,14 +82,14 @@ def contradicts_odometry(pose, guess, step, config: FrontEndConfig,
 def scans_overrule(fit: float, predicted: float, stale: bool, config: FrontEndConfig) -> bool:
     """Whether a match fitting ``fit`` of its points on the keyframe's surfaces fits clearly
     better than odometry's prediction, which fits ``predicted``. Against a ``stale`` reading,
-    which says nothing of the motion since, a gain above ``odometry_gate_fit`` suffices. A new
-    reading is a measurement: the match must fit more than ``odometry_gate_explained`` of the
-    points the prediction misses (both fits counted within ``odometry_gate_distance``). A fixed
+    which says nothing of the motion since, a gain above ``odometry_gate.fit`` suffices. A new
+    reading is a measurement: the match must fit more than ``odometry_gate.explained`` of the
+    points the prediction misses (both fits counted within ``OVERRULE_DISTANCE``). A fixed
     gain cannot tell a match that fits every point where the prediction misses a tenth from one
     that fits two thirds where it fits half (a hall whose walls fit a slip either way)."""
     if stale:
-        return fit - predicted > config.odometry_gate_fit
-    return fit - predicted > config.odometry_gate_explained * (1.0 - predicted)
+        return fit - predicted > config.odometry_gate.fit
+    return fit - predicted > config.odometry_gate.explained * (1.0 - predicted)
 
 
 def _unbeatable(n: int, gain: float) -> int:
@@ -112,14 +124,15 @@ class PreviousScan:
 
     def disowns(self, scan: PointScan, pose, predicted: Prediction) -> bool:
         """The previous-scan check: the previous scan fits odometry's prediction (a new
-        reading) clearly better than the match ``pose``: more than ``previous_scan_gain`` of
-        the points better, the prediction fitting at least ``previous_scan_fit`` of them. A
+        reading) clearly better than the match ``pose``: more than ``previous_scan_check.gain``
+        of the points better, the prediction fitting at least ``PREVIOUS_SCAN_FIT`` of them. A
         keyframe's submap whose node scans were placed a few degrees apart holds a wall twice,
         and a scan tracked against it fits either copy; the previous scan, moments old, holds
         the wall once."""
-        c = self.config
+        c, check = self.config, self.config.previous_scan_check
         n = scan.count
-        if predicted.stale or c.previous_scan_gain >= 1 or self.scan.count == 0 or n == 0:
+        if (predicted.stale or not check.enabled or check.gain >= 1 or self.scan.count == 0
+                or n == 0):
             return False  # a stale reading predicts nothing to vouch for
         if not self._listed:
             self.matcher.list_surfaces(self.scan, self._surfaces)
@@ -127,17 +140,17 @@ class PreviousScan:
         # The match first: the prediction fits at most every point, so a match fitting
         # ``unbeatable`` of them cannot be disowned and its count stops there. The verdict is
         # the one both counts in full give, in about half the reads (most matches fit 0.9+).
-        unbeatable = _unbeatable(n, c.previous_scan_gain)
+        unbeatable = _unbeatable(n, check.gain)
         matched = self.matcher.surface_inliers(
             scan, self._surfaces, between(pose, predicted.last), c.track_inlier_distance,
-            c.track_inlier_slope, stop=unbeatable)
+            INLIER_SLOPE, stop=unbeatable)
         if matched >= unbeatable:
             return False
         fit = matched / n
         fits = self.matcher.surface_inliers(
             scan, self._surfaces, between(predicted.guess, predicted.last),
-            c.track_inlier_distance, c.track_inlier_slope) / n
-        if fits >= c.previous_scan_fit and fits - fit > c.previous_scan_gain:
+            c.track_inlier_distance, INLIER_SLOPE) / n
+        if fits >= PREVIOUS_SCAN_FIT and fits - fit > check.gain:
             self.counts.disowned_matches += 1
             return True
         return False
@@ -164,13 +177,12 @@ class OdometryGate:
 
     def fit(self, scan: PointScan, pose, distance: float | None = None) -> float:
         """The share of ``scan``'s points at ``pose`` within ``distance`` (default
-        ``track_inlier_distance``), plus ``track_inlier_slope`` per m of range, of the
+        ``track_inlier_distance``), plus ``INLIER_SLOPE`` per m of range, of the
         keyframe's surfaces."""
         c = self.config
         if distance is None:
             distance = c.track_inlier_distance
-        return self.matcher.inlier_fraction(scan, self.reference, pose, distance,
-                                            c.track_inlier_slope)
+        return self.matcher.inlier_fraction(scan, self.reference, pose, distance, INLIER_SLOPE)
 
     def lost(self, scan: PointScan, pose, predicted: Prediction, inside: bool) -> bool:
         """The match has lost track: it is pressed against its search box's edge (not
@@ -212,31 +224,31 @@ class OdometryGate:
         # turning a fast turn's prediction far is no slide along a corridor, and odometry's
         # position, composed along its heading, is off with it
         if (contradicts_odometry(pose, guess, step, c, heading=False)
-                and abs(float(between(pose, guess)[2])) <= c.odometry_gate[1]
+                and abs(float(between(pose, guess)[2])) <= c.odometry_gate.tolerance[1]
                 and self.fit(scan, guess) >= c.min_track_inliers):
             return False
         # a narrower band than a lost match's tells two poses a few degrees apart
-        fit, fits = (self.fit(scan, p, c.odometry_gate_distance) for p in (pose, guess))
+        fit, fits = (self.fit(scan, p, OVERRULE_DISTANCE) for p in (pose, guess))
         return scans_overrule(fit, fits, False, c)
 
     def heading_prior(self, scan: PointScan, match: MatchResult, predicted: Prediction):
         """Of two optima of the scan cost, the one nearer odometry's heading: a ``match``
-        turning the prediction (a new reading) by more than σ (``odometry_heading_sigma`` plus
-        ``odometry_gate_share``'s heading share of the predicted turn) is weighed against the
+        turning the prediction (a new reading) by more than σ (``HEADING_SIGMA`` plus
+        ``odometry_gate.share``'s heading share of the predicted turn) is weighed against the
         optimum the compass search settles in from the prediction, each by its λ plus
-        ``odometry_heading_weight``·(its turn from the prediction / σ)². A submap holding a wall
+        ``heading_prior.weight``·(its turn from the prediction / σ)². A submap holding a wall
         twice fits a scan at either copy about equally; odometry, which saw no such turn, tells
         them apart. A match that fits clearly better, odometry's lag in a fast turn, outweighs
         the prior. Returns the pose that stands."""
         c = self.config
         guess = predicted.guess
         turn = float(wrap_angle(match.pose[2] - guess[2]))
-        sigma = c.odometry_heading_sigma + c.odometry_gate_share[1] * abs(float(predicted.step[2]))
-        if c.odometry_heading_weight <= 0 or abs(turn) <= sigma:
+        sigma = HEADING_SIGMA + c.odometry_gate.share[1] * abs(float(predicted.step[2]))
+        if not c.heading_prior.enabled or abs(turn) <= sigma:
             return match.pose
         settled = self.matcher.settle(scan, self.reference, at_prediction(guess))
         held = float(wrap_angle(settled.pose[2] - guess[2]))
-        weight = c.odometry_heading_weight
+        weight = c.heading_prior.weight
         if settled.error + weight * (held / sigma) ** 2 < match.error + weight * (turn / sigma) ** 2:
             self.counts.held_to_odometry += 1
             return settled.pose

@@ -31,20 +31,22 @@ import math
 
 import numpy as np
 
-from swarmslam.runtime.config import FrontEndConfig
 from swarmslam.runtime.pose import between
 
-_DEFAULTS = FrontEndConfig()
+# This many gaps in a row between new readings, each longer than twice the fewest scans one
+# took, start the period's count again: the fewest was a stray (a reading one scan after
+# another where scans were refused now and then).
+RESTART_GAPS = 3
 
 
 class OdometryReadings:
     """The readings so far, and what the next one predicts (see module doc)."""
 
     def __init__(self, stale_motion: bool, periodic_ratio: float = 0.0,
-                 restart_gaps: int = _DEFAULTS.period_restart_gaps):
+                 restart_gaps: int = RESTART_GAPS):
         self.stale_motion = stale_motion
         self.periodic_ratio = periodic_ratio
-        self.restart_gaps = restart_gaps  # front_end.period_restart_gaps
+        self.restart_gaps = restart_gaps
         self.last = np.zeros(3)  # the last new reading (a copy)
         self.have = False  # a reading came at the last scan: the next one is a motion from it
         self.stale_scans = 0  # scans since the last new reading

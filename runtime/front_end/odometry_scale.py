@@ -40,6 +40,12 @@ from numba import njit
 
 from swarmslam.runtime.pose import between
 
+# m: the fit is blended with a scale of 1 worth this much travel (a short run keeps odometry as
+# it reads)
+PRIOR_TRAVEL = 5.0
+# The fitted scale is shrunk towards 1 by this much (1 within it): the matches' own scale errs
+# by a per-mille or two.
+DEAD_ZONE = 0.005
 BINS = 1000  # bins of the steps' ratios across the limits (0.00045 wide for 0.8–1.25)
 
 
@@ -115,11 +121,9 @@ class OdometryCalibration:
     so that the motion from it can be observed."""
 
     def __init__(self, config):
-        """``config``: the front end's section (``calibrate_odometry_scale`` and the
-        ``odometry_scale_*`` fields)."""
-        self.enabled = config.calibrate_odometry_scale
-        self.fit = OdometryScale(config.odometry_scale_prior_travel,
-                                 config.odometry_scale_limits, config.odometry_scale_dead_zone)
+        """``config``: the front end's section (its ``odometry_scale``)."""
+        self.enabled = config.odometry_scale.enabled
+        self.fit = OdometryScale(PRIOR_TRAVEL, config.odometry_scale.limits, DEAD_ZONE)
         self.part = np.zeros(2)
         self.pinned_base = False
 

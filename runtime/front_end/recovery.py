@@ -3,7 +3,7 @@
     pose, weak = recovery.recover(scan, pose, predicted, inside)
 
 With odometry, the match is sought again around the motion the scans showed last, continued
-(after a stale reading, over a heading window as wide as ``stale_turn_window``), and, when the
+(after a stale reading, over a heading window as wide as ``recovery.stale_turn_window``), and, when the
 lost match pressed against its box's edge, around that match itself: the optimum lay beyond
 the box. Odometry that lags the scans and then catches up in a burst predicts tens of degrees
 off, and so may the scans' last motion when a turn starts or stops. The better fitting of the
@@ -27,15 +27,19 @@ from swarmslam.runtime.front_end.odometry_gate import OdometryGate, Prediction, 
 from swarmslam.runtime.front_end.odometry_readings import OdometryReadings
 from swarmslam.runtime.pose import compose, wrap_angle
 from swarmslam.runtime.matching.scan import PointScan
-from swarmslam.runtime.matching.scan_matcher import ScanMatcher
+from swarmslam.runtime.matching.scan_matcher import BOX_MARGIN, ScanMatcher
+
+# The compass search's match replaces the swarm's where its λ is below this share of the
+# swarm's: a basin the swarm missed, not the same one polished.
+SEEK_RATIO = 0.9
 
 
 def stale_turn_box(config: SlamConfig) -> np.ndarray:
     """The half-widths of a match's box after a stale reading: the guess window's, the
-    heading's widened to ``stale_turn_window`` (a turn in place since the reading is not
+    heading's widened to ``recovery.stale_turn_window`` (a turn in place since the reading is not
     known)."""
     g = config.matcher.guess_window
-    return np.array([g[0], g[1], max(g[2], config.front_end.stale_turn_window)])
+    return np.array([g[0], g[1], max(g[2], config.front_end.recovery.stale_turn_window)])
 
 
 class Recovery:
@@ -76,7 +80,7 @@ class Recovery:
 
     def _pivot_search(self, scan, predicted: Prediction, searched, window):
         """One match over every heading the robot can have turned to since the last scan, at
-        ``pivot_search_rate`` for the interval since it, either side of that scan's heading, at
+        ``recovery.pivot_search_rate`` for the interval since it, either side of that scan's heading, at
         the prediction's position. It stands if it overrules the prediction as after a stale
         reading and turns beyond every box searched before (around the prediction and each of
         ``searched``, their half-widths ``window``, None: the guess window's): within them,
@@ -86,13 +90,13 @@ class Recovery:
         turn."""
         c = self.config.front_end
         interval, guess, last = predicted.interval, predicted.guess, predicted.last
-        if c.pivot_search_rate <= 0 or not math.isfinite(interval) or interval <= 0:
+        if c.recovery.pivot_search_rate <= 0 or not math.isfinite(interval) or interval <= 0:
             return None, None
         prior = np.array(guess, dtype=np.float64)
         prior[2] = last[2]
         g = self.config.matcher.guess_window
         # (wide enough to hold the prediction's own box too)
-        half = max(min(c.pivot_search_rate * interval, math.pi),
+        half = max(min(c.recovery.pivot_search_rate * interval, math.pi),
                    abs(float(wrap_angle(guess[2] - last[2]))) + g[2])
         self.matcher.keep_stream()
         kept = self.degeneracy.last, self.counts.degenerate_matches
@@ -112,15 +116,15 @@ class Recovery:
     def _sought_match(self, scan, prior, window, seek: bool = True) -> np.ndarray:
         """A lost match sought again around ``prior`` (a box of half-widths ``window``, None:
         the guess window): Alg. 5's, or the compass search's settled from headings
-        ``recovery_heading_step`` apart across the same box where it fits clearly better (λ
-        below ``recovery_seek_ratio`` of Alg. 5's). The swarm finds its basin on the coarse
+        ``recovery.heading_step`` apart across the same box where it fits clearly better (λ
+        below ``SEEK_RATIO`` of Alg. 5's). The swarm finds its basin on the coarse
         field, which people crowding a pivot can mislead; the fine field tells the turn.
         ``seek`` False: Alg. 5's alone."""
         c = self.config.front_end
         match = self.matcher.align_scans(scan, self.reference, prior, window)
-        if seek and c.recovery_heading_step > 0:
-            sought = self.matcher.seek_headings(scan, self.reference, c.recovery_heading_step)
-            if sought.error < c.recovery_seek_ratio * match.error:
+        if seek and c.recovery.heading_step > 0:
+            sought = self.matcher.seek_headings(scan, self.reference, c.recovery.heading_step)
+            if sought.error < SEEK_RATIO * match.error:
                 self.counts.sought_matches += 1
                 return sought.pose
         return match.pose
@@ -135,11 +139,11 @@ class Recovery:
         best, best_fit, degeneracy = None, -1.0, None
         for prior in priors:
             match = self._sought_match(scan, prior, window, seek)
-            inside_box = not self.matcher.at_box_edge(match, c.window_margin)
+            inside_box = not self.matcher.at_box_edge(match, BOX_MARGIN)
             if c.degeneracy_ratio > 0:  # along a degenerate axis, odometry's position stands
                 match = self.degeneracy.constrain(scan, match, guess)
                 inside_box = not self.matcher.at_box_edge(
-                    self.degeneracy.last.remap(match, prior), c.window_margin)
+                    self.degeneracy.last.remap(match, prior), BOX_MARGIN)
             fit = self.gate.fit(scan, match)
             if fit > best_fit and self.gate.overrules(scan, match, fit, guess, step, inside_box,
                                                       stale):

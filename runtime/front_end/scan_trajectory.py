@@ -66,16 +66,16 @@ class ScanTrajectory:
         # the scans between nodes smoothed with odometry's motion, heading first (a position's
         # motion is read in the frame its heading gives), where the run shows it pays
         is_node = np.r_[True, node[1:] != node[:-1]]  # a node's first scan is its own
-        smoothing = BetweenSmoothing(c.between_significance, c.between_gate, c.between_min_pairs)
+        smoothing = BetweenSmoothing(min_pairs=c.between_scans.min_pairs)
         odometry, kind = self.odometry[:n], self.reading[:n]
         rel = rel.copy()
-        if c.smooth_between_headings:
+        if c.between_scans.headings:
             headings, self.heading_noise = smooth_headings(node, rel, is_node, poses, odometry,
                                                            kind, step, smoothing)
             if headings is not None:
                 rel[:, 2] = headings
                 poses = self._place(graph, node, rel, stamp, step)
-        if c.smooth_between_positions:
+        if c.between_scans.positions:
             positions, self.position_noise = smooth_positions(node, rel, is_node, poses, odometry,
                                                               kind, step, smoothing, graph.scale)
             if positions is not None:

@@ -36,13 +36,16 @@ from swarmslam.runtime.pose_graph import (ODOMETRY, PoseGraph, information_from_
                                            propagate_covariance)
 from swarmslam.runtime.front_end.recovery import Recovery
 from swarmslam.runtime.matching.scan import PointScan
-from swarmslam.runtime.matching.scan_matcher import ScanMatcher
+from swarmslam.runtime.matching.scan_matcher import BOX_MARGIN, ScanMatcher
 from swarmslam.runtime.front_end.scan_trajectory import ScanTrajectory
 from swarmslam.runtime.tallies import restore_counts
 from swarmslam.runtime.matching.sweep_motion import SweepMotion
 
 CAPACITY_STATUS = "capacity reached: localising against the last node, map frozen"
 TRAJECTORY_STATUS = "trajectory capacity reached: poses no longer recorded"
+# The next node edge's information is divided by this after a lost match: σ three times its
+# own, the edge holding what recovery found, not a tracked match.
+WEAK_INFORMATION_FACTOR = 9.0
 
 
 @dataclass
@@ -67,8 +70,7 @@ class FrontEnd:
         self.reference = self.matcher.new_reference()
         self.submap = KeyframeSubmap(config, graph, nodes, self.matcher, self.reference)
         self.sweep = SweepMotion(config.sensor, config.sensor.max_points)
-        self.readings = OdometryReadings(c.stale_motion, c.periodic_odometry_ratio,
-                                         c.period_restart_gaps)
+        self.readings = OdometryReadings(c.stale_motion, c.periodic_odometry_ratio)
         self.gate = OdometryGate(c, self.matcher, self.reference, config.sensor.max_points,
                                  self.counts)
         self.degeneracy = DegeneracyCheck(c, self.matcher, self.reference, self.counts)
@@ -115,7 +117,7 @@ class FrontEnd:
             pose = self.degeneracy.constrain(scan, pose, predicted.guess)
             pinned = pinned and not self.degeneracy.last.degenerate
         # (after the slide along a degenerate axis is dropped: there the box's edge is no sign)
-        inside = not self.matcher.at_box_edge(pose, self.config.front_end.window_margin)
+        inside = not self.matcher.at_box_edge(pose, BOX_MARGIN)
         if self.gate.lost(scan, pose, predicted, inside):
             pose, weak = self.recovery.recover(scan, pose, predicted, inside)
             self.weak = self.weak or weak
@@ -158,7 +160,7 @@ class FrontEnd:
         z = self.rel.copy()  # odometry's part at the scale the graph's edges hold theirs
         z[:2] += (g.scale - 1.0) * part
         if self.weak:
-            info = info / c.weak_information_factor
+            info = info / WEAK_INFORMATION_FACTOR
             self.weak = False
         node = g.add_node(compose(g.poses[previous], z), stamp)
         g.add_edge(previous, node, z, info, ODOMETRY, part)

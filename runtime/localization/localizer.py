@@ -43,6 +43,13 @@ from swarmslam.runtime.matching.scan import PointScan
 from swarmslam.runtime.matching.scan_matcher import ScanMatcher
 from swarmslam.runtime.step_result import StepResult
 
+# Share of points off the saved surfaces any candidate may have beyond the best one's multiple
+# (a nearly perfect best one then does not drop the other for a point or two).
+CONFIRM_MISS_FLOOR = 0.003
+# m, rad: candidates that tracked this near each other are one (the worse is dropped)
+MERGE_DISTANCE = 0.2
+MERGE_ANGLE = 0.05
+
 SEARCHING, CONFIRMING, TRACKING = "searching", "confirming", "tracking"
 
 
@@ -77,8 +84,7 @@ class Localizer:
         self.poses = np.full((n, 3), np.nan)  # NaN: no committed pose at that scan
         self.n_scans = 0
         self.readings = OdometryReadings(config.front_end.stale_motion,
-                                         config.front_end.periodic_odometry_ratio,
-                                         config.front_end.period_restart_gaps)
+                                         config.front_end.periodic_odometry_ratio)
         self.last_stamp = math.nan  # the scan before's, for the sweep (docs/method.md §6.1)
         self.counts = {"searches": 0, "ambiguous_answers": 0, "empty_answers": 0,
                        "committed": 0, "lost": 0, "poor_matches": 0, "tracked_scans": 0,
@@ -266,7 +272,7 @@ class Localizer:
             # the fit saturates near 1 in a well-mapped place: the share of points off the
             # surfaces tells a wrong place (a rival seen from afar) from the right one
             best = 1.0 - max(t.mean_fit for t in self.trackers[: self.n_candidates])
-            worst = min(lc.confirm_misses * best + lc.confirm_miss_floor, lc.confirm_max_miss,
+            worst = min(lc.confirm_misses * best + CONFIRM_MISS_FLOOR, lc.confirm_max_miss,
                         1.0 - self.config.front_end.min_track_inliers)  # none fitting poorly
             self._keep(lambda t: 1.0 - t.mean_fit <= worst)
         if self.config.relocalization.confirm_look and stamp > self.found_at:
@@ -305,12 +311,12 @@ class Localizer:
 
     def _duplicates(self) -> set:
         """Candidates that tracked into the place of a better fitting one (within
-        merge_distance and merge_angle): ids to drop."""
+        MERGE_DISTANCE and MERGE_ANGLE): ids to drop."""
         lc = self.config.localization
         trackers, dropped = self.trackers[: self.n_candidates], set()
         for i, a in enumerate(trackers):
             for b in trackers[i + 1 :]:
-                if within(a.pose, b.pose, lc.merge_distance, lc.merge_angle):
+                if within(a.pose, b.pose, MERGE_DISTANCE, MERGE_ANGLE):
                     dropped.add(id(b) if a.mean_fit >= b.mean_fit else id(a))
         return dropped
 

@@ -8,7 +8,7 @@
 The reference is the ``localization.submap_nodes`` saved node scans nearest the pose (heading
 counted as distance, since a scan sees what its node faced), placed in the nearest one's
 frame — the anchor. It is rebuilt only when another node becomes nearer than the anchor by
-``reanchor_distance``, so, as in the front end, most scans match a reference built earlier.
+``REANCHOR_DISTANCE``, so, as in the front end, most scans match a reference built earlier.
 A match that fits poorly is replaced by the prediction (the scan may be blocked by people or
 furniture the map does not have); ``lost_scans`` such matches in a row mean the pose is lost.
 With ``gate`` (a committed pose, or a candidate being confirmed), a match that odometry
@@ -32,7 +32,7 @@ from swarmslam.runtime.front_end.odometry_gate import contradicts_odometry
 from swarmslam.runtime.pose import between, compose
 from swarmslam.runtime.front_end.recovery import stale_turn_box
 from swarmslam.runtime.matching.scan import PointScan
-from swarmslam.runtime.matching.scan_matcher import ScanMatcher
+from swarmslam.runtime.matching.scan_matcher import CURVATURE_STEP, INLIER_SLOPE, ScanMatcher
 from swarmslam.runtime.matching.sweep_motion import SweepMotion
 
 
@@ -106,6 +106,12 @@ class SavedMap:
 # A confirmation's pinned matches are judged by the front end's degeneracy ratio, or this
 # when that test is off (0): a corridor is not a place.
 MIN_PINNED_RATIO = 0.12
+# m per rad: a saved node's heading difference counts as this much distance when the nearest
+# are chosen (a scan sees what its node faced)
+HEADING_WEIGHT = 2.0
+# m: the reference is rebuilt once a saved node is this much nearer than its anchor (most scans
+# then match a reference built earlier, as in the front end)
+REANCHOR_DISTANCE = 0.3
 
 
 class MapTracker:
@@ -170,7 +176,7 @@ class MapTracker:
         last scan's when none came since this pose was started), else from the last scan's
         (:mod:`swarmslam.runtime.front_end.odometry_readings`); None: the last motion again. A
         ``stale`` reading (the last one again) widens the heading's search to
-        ``stale_turn_window``. With ``gate``, a match odometry contradicts is
+        ``recovery.stale_turn_window``. With ``gate``, a match odometry contradicts is
         refused (:meth:`_gated`); with ``measure``, a match that pins every direction (not
         degenerate, docs/method.md §6.1) is counted in ``pinned``. ``interval``: s since the
         scan followed before (0: not known, or scans followed backward), over which the robot's
@@ -200,9 +206,9 @@ class MapTracker:
         if gate and step is not None and self.followed:
             pose = self._gated(pose, guess, step)
         fit = self.matcher.inlier_fraction(scan, self.reference, pose,
-                                           c.track_inlier_distance, c.track_inlier_slope)
+                                           c.track_inlier_distance, INLIER_SLOPE)
         if measure and fit >= c.min_track_inliers:
-            h = self.matcher.curvature(scan, self.reference, pose, c.curvature_step)
+            h = self.matcher.curvature(scan, self.reference, pose, CURVATURE_STEP)
             self.pinned += not Degeneracy(h, max(c.degeneracy_ratio, MIN_PINNED_RATIO),
                                           c.degenerate_information).degenerate
         if fit < c.min_track_inliers:
@@ -253,11 +259,11 @@ class MapTracker:
     def _reanchor(self, pose) -> None:
         lc = self.config.localization
         n = nearest_nodes(self.saved.poses, self.saved.n_nodes, pose[0], pose[1], pose[2],
-                          lc.heading_weight, self._near, self._near_d2)
+                          HEADING_WEIGHT, self._near, self._near_d2)
         if self.anchor >= 0:
             held = math.sqrt(node_distance2(self.saved.poses, self.anchor, pose[0], pose[1],
-                                            pose[2], lc.heading_weight))
-            if math.sqrt(self._near_d2[0]) + lc.reanchor_distance >= held:
+                                            pose[2], HEADING_WEIGHT))
+            if math.sqrt(self._near_d2[0]) + REANCHOR_DISTANCE >= held:
                 return
         self.anchor = int(self._near[0])
         self._near[:n].sort()  # oldest first, so surfaces join within each scan

@@ -7,7 +7,7 @@
     search.advance(clock, budget_end)            # True once search.answer is there
 
 1. search, coarse to fine: an exhaustive branch and bound over every standable cell and
-   heading of a coarse hit grid (``coarse_resolution``, blurred by ``coarse_hit_sigma``) gives
+   heading of a coarse hit grid (``coarse_resolution``, blurred by ``COARSE_HIT_SIGMA``) gives
    the best distinct candidates (:func:`swarmslam.runtime.matching.place_search.branch_and_bound`); each is then
    scored at every pose of a small window on the fine grid
    (:func:`swarmslam.runtime.matching.place_search.refine_candidates`). A map of at most ``exact_max_cells``
@@ -48,6 +48,22 @@ from swarmslam.runtime.matching.place_search import (
 from swarmslam.runtime.pose import between, compose, wrap_angle
 from swarmslam.runtime.matching.scan import PointScan
 from swarmslam.runtime.matching.scan_matcher import ScanMatcher
+
+# The search's internals, fixed (docs/method.md §8). The coarse first pass on a map over
+# exact_max_cells: its hit grid's blur (m), its query points at most, the mean hit value (0-1)
+# a candidate needs and the share of the pass's best it must score, the candidates refined at
+# most (the best distinct ones), and how near (m, rad) two candidates are one.
+COARSE_HIT_SIGMA = 0.4
+COARSE_POINTS = 24
+COARSE_MIN_SCORE = 0.6
+COARSE_RATIO = 0.9
+COARSE_CANDIDATES = 64
+COARSE_DISTINCT_DISTANCE = 0.5
+COARSE_DISTINCT_ANGLE = 0.15
+REFINE_MOVES = 3  # times a candidate's fine window may move to a best found on its edge
+HEADING_LEVELS = 0  # top pyramid levels whose blocks also span 2, 4, … headings (none)
+QUERY_SPACING = 0.2  # m: query points at least this far apart along the scan
+REFINE_NODES = 5  # nearest node scans the swarm's polish matches against
 
 
 @dataclass(frozen=True)
@@ -113,10 +129,10 @@ class Relocalizer:
         two = nx * ny > rc.exact_max_cells
         # the answer's grid; with a first pass, only its hit grid is needed (no pyramid)
         self.place = PlaceMap(poses, nodes, n_nodes, rc, gap, rc.resolution, rc.hit_sigma,
-                              0 if two else rc.levels, 0 if two else rc.heading_levels)
+                              0 if two else rc.levels, 0 if two else HEADING_LEVELS)
         # the grid the exhaustive branch and bound runs on (docs/method.md §8)
         self.coarse = (PlaceMap(poses, nodes, n_nodes, rc, gap, rc.coarse_resolution,
-                                rc.coarse_hit_sigma, rc.levels, rc.heading_levels,
+                                COARSE_HIT_SIGMA, rc.levels, HEADING_LEVELS,
                                 standable=self.place)
                        if two else None)
         exhaustive = self.coarse or self.place
@@ -138,16 +154,16 @@ class Relocalizer:
         self._found = np.zeros((rc.max_hypotheses, 4), np.int64)
         if two:  # the first pass's query, offsets, candidates
             self._coarse_query = np.zeros((rc.query_points, 2))
-            self._coarse_offsets = np.zeros((groups * group, rc.coarse_points, 2), np.int64)
+            self._coarse_offsets = np.zeros((groups * group, COARSE_POINTS, 2), np.int64)
             self._coarse_offset_box = np.zeros((groups * group, 4), np.int64)
-            self._coarse_found = np.zeros((rc.coarse_candidates, 4), np.int64)
-            self._candidates = np.zeros((rc.coarse_candidates, 3), np.int64)
+            self._coarse_found = np.zeros((COARSE_CANDIDATES, 4), np.int64)
+            self._candidates = np.zeros((COARSE_CANDIDATES, 3), np.int64)
         self.cell_radius = int(math.ceil(rc.distinct_distance / rc.resolution))
         self.matcher = ScanMatcher(replace(config.matcher, guess_window=rc.refine_window,
                                            predict_first=0.0),
                                    seed=seed)
         self.reference = self.matcher.new_reference()
-        self._submap = PointScan(config.sensor.max_points * rc.refine_nodes)
+        self._submap = PointScan(config.sensor.max_points * REFINE_NODES)
         self.blocks_scored = 0  # by the last search (blocks and refined poses)
 
     # ------------------------------------------------------------------ the answer
@@ -178,7 +194,7 @@ class Relocalizer:
         """The search as a generator: it yields between slices and returns the answer."""
         rc = self.config
         query = self._query if scan.count <= len(self._query) else np.zeros((scan.count, 2))
-        n = select_query(scan.buffer, scan.count, rc.query_range, rc.query_spacing,
+        n = select_query(scan.buffer, scan.count, rc.query_range, QUERY_SPACING,
                          rc.query_points, query)
         if n < 3:
             return Ambiguous((), (), f"only {n} usable points within {rc.query_range} m")
@@ -235,7 +251,7 @@ class Relocalizer:
                     self.place.bounds, self.place.free, self._offsets, n, n_headings,
                     self._candidates, last, self.cell_radius, heading_radius,
                     int(math.ceil(cells)) + 1, int(math.ceil(self._coarse_step / step)) + 1,
-                    rc.refine_moves, min_score, rc.ambiguity_ratio, self._found, first,
+                    REFINE_MOVES, min_score, rc.ambiguity_ratio, self._found, first,
                     n_found, last == n_candidates)
                 poses += scored
                 if last < n_candidates:
@@ -249,19 +265,19 @@ class Relocalizer:
 
     def _coarse_pass(self, query, n: int, budget: int = UNLIMITED):
         """The first pass: branch and bound on the coarse grid with the query thinned to
-        ``coarse_points``; its best distinct poses (at most ``coarse_candidates``, scoring at
-        least ``coarse_ratio`` of the best) are the candidates. A generator, as
+        ``COARSE_POINTS``; its best distinct poses (at most ``COARSE_CANDIDATES``, scoring at
+        least ``COARSE_RATIO`` of the best) are the candidates. A generator, as
         :meth:`search`; returns ``(how many, blocks scored)``."""
         rc, coarse = self.config, self.coarse
-        m = select_query(query, n, math.inf, 0.0, rc.coarse_points, self._coarse_query)
+        m = select_query(query, n, math.inf, 0.0, COARSE_POINTS, self._coarse_query)
         n_headings, self._coarse_step = self._rotate(
             self._coarse_query, m, coarse, self._coarse_offsets, self._coarse_offset_box)
         return (yield from self._branch_and_bound(
             budget, coarse.bounds, coarse.shifts, coarse.groups, coarse.free,
             self._coarse_offsets, self._coarse_offset_box, m, n_headings,
-            int(math.ceil(rc.coarse_min_score * HIT_MAX * m)),
-            rc.coarse_ratio, int(math.ceil(rc.coarse_distinct_distance / coarse.resolution)),
-            int(math.ceil(rc.coarse_distinct_angle / self._coarse_step)), self._roots,
+            int(math.ceil(COARSE_MIN_SCORE * HIT_MAX * m)),
+            COARSE_RATIO, int(math.ceil(COARSE_DISTINCT_DISTANCE / coarse.resolution)),
+            int(math.ceil(COARSE_DISTINCT_ANGLE / self._coarse_step)), self._roots,
             self._stack, self._coarse_found))
 
     def _branch_and_bound(self, budget: int, *args):
@@ -292,7 +308,7 @@ class Relocalizer:
         ``pose`` (the grid's answer)."""
         rc = self.config
         d2 = np.sum((self.poses[:, :2] - pose[:2]) ** 2, axis=1)
-        near = np.argsort(d2, kind="stable")[: rc.refine_nodes]
+        near = np.argsort(d2, kind="stable")[: REFINE_NODES]
         anchor = int(near[0])
         submap = self.nodes.place(self.poses, sorted(int(k) for k in near), anchor, self._submap)
         reference = self.matcher.build_reference(submap, self.reference)

@@ -17,6 +17,8 @@ import math
 
 import numpy as np
 
+from swarmslam.runtime.matching.scan_matcher import CURVATURE_STEP
+
 
 class Degeneracy:
     """The decomposition of one match's curvature, and what follows from it."""
@@ -59,7 +61,7 @@ class DegeneracyCheck:
     edge, which is weak along its axis."""
 
     def __init__(self, config, matcher, reference, counts):
-        """``config``: the front end's section (``degeneracy_ratio``, ``curvature_step``,
+        """``config``: the front end's section (``degeneracy_ratio``,
         ``degenerate_information``); ``counts``: tallies ``degenerate_matches``."""
         self.config, self.matcher, self.reference, self.counts = config, matcher, reference, counts
         self.last: Degeneracy | None = None
@@ -68,7 +70,7 @@ class DegeneracyCheck:
         """``pose`` (a match of ``scan``), but at the prediction ``guess``'s position along the
         axis the scan does not pin."""
         c = self.config
-        h = self.matcher.curvature(scan, self.reference, pose, c.curvature_step)
+        h = self.matcher.curvature(scan, self.reference, pose, CURVATURE_STEP)
         self.last = Degeneracy(h, c.degeneracy_ratio, c.degenerate_information)
         if self.last.degenerate:
             self.counts.degenerate_matches += 1

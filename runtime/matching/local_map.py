@@ -2,7 +2,7 @@
 
 Convention as in the paper: uint8, 0 = certainly occupied, 255 = certainly free, 128 unknown,
 linear in between. Cells along each beam are free; cells within ``occupied_radius`` of a beam
-end ramp linearly from 0 at the end point to 255 at the radius (read from the distance field,
+end (the matcher's ``OCCUPIED_RADIUS``) ramp linearly from 0 at the end point to 255 at the radius (read from the distance field,
 which already holds the (kernelled) squared distance to the nearest end point).
 """
 

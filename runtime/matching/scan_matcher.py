@@ -69,6 +69,23 @@ N_SETTINGS = 24
 R_X, R_Y, R_T, R_LAMBDA, R_USED_MAP, R_ITERATIONS, R_EVALUATIONS, R_LAMBDA_SCAN = range(8)
 N_OUT = 8
 
+# The matcher's internals, fixed (docs/method.md §3):
+# farther neighbours that continue their line (surface_bend) form a surface only while their
+# gap is at most this many times the shorter pair's: one surface sampled evenly, not a
+# doorway's two sides
+SURFACE_GAP_RATIO = 2.0
+COARSE_RADIUS = 0.6  # m, truncation of the global stage's coarse field
+# The compass search that settles the swarm's match on the fine field: its first steps (m,
+# rad), halved this many times before it ends.
+POLISH_STEP = (0.01, 0.005)
+POLISH_HALVINGS = 6
+OCCUPIED_RADIUS = 0.1  # m, ramp around obstacles in the local grid (Eq. 16)
+# m per m of range added to an inlier distance: a beam spreads and grazes with range
+INLIER_SLOPE = 0.01
+# A match within this share of its search box's edge found no optimum inside the box.
+BOX_MARGIN = 0.05
+CURVATURE_STEP = (0.05, 0.01)  # finite-difference steps (m, rad) of a match's curvature
+
 
 class ReferenceMaps:
     """A reference scan rendered for matching: its distance fields and local occupancy grid."""
@@ -388,8 +405,8 @@ class ScanMatcher:
         s[S_REFINE_EVALS] = c.refine_evaluations
         s[S_REFINE_X : S_REFINE_T + 1] = c.refine_window
         s[S_COARSE] = 1.0 if c.coarse_resolution > 0 else 0.0
-        s[S_POLISH_XY], s[S_POLISH_T] = c.polish_step
-        s[S_POLISH_HALVINGS] = c.polish_halvings
+        s[S_POLISH_XY], s[S_POLISH_T] = POLISH_STEP
+        s[S_POLISH_HALVINGS] = POLISH_HALVINGS
         s[S_POLISH_EVALS] = c.polish_evaluations
         self.settings = s
         self._out = np.zeros(N_OUT)
@@ -460,7 +477,7 @@ class ScanMatcher:
         out.count = list_surfaces(scan.buffer, scan.count, c.resolution, c.field_radius,
                                   c.max_gap, self._inv_c2(), cells, cells, out.meta,
                                   out.surfaces, out.tiling, out.heads, out.links,
-                                  c.surface_bend, c.surface_gap_ratio)
+                                  c.surface_bend, SURFACE_GAP_RATIO)
 
     def build_reference(self, scan: PointScan, out: ReferenceMaps | None = None) -> ReferenceMaps:
         """Render a reference scan's distance field (Eq. 14) and local grid (Eq. 16)."""
@@ -472,7 +489,7 @@ class ScanMatcher:
         self.build_coarse(scan, ref)
         if c.scan_to_map:
             build_local_map(
-                scan.buffer, scan.count, ref.field, ref.meta, self._inv_c2(), c.occupied_radius,
+                scan.buffer, scan.count, ref.field, ref.meta, self._inv_c2(), OCCUPIED_RADIUS,
                 ref.grid
             )
         ref.ready = True
@@ -485,17 +502,17 @@ class ScanMatcher:
         c = self.config
         build_distance_field(scan.buffer, scan.count, c.resolution, c.field_radius, c.max_gap,
                              self._inv_c2(), out.field, out.meta, out.columns,
-                             out.spans, c.surface_bend, c.surface_gap_ratio)
+                             out.spans, c.surface_bend, SURFACE_GAP_RATIO)
 
     def build_coarse(self, scan: PointScan, out: ReferenceMaps) -> None:
         """Render ``scan``'s coarse field (the global stage's, plain ``d²``) alone into
         ``out``; nothing without ``coarse_resolution``."""
         c = self.config
         if c.coarse_resolution > 0:
-            build_distance_field(scan.buffer, scan.count, c.coarse_resolution, c.coarse_radius,
+            build_distance_field(scan.buffer, scan.count, c.coarse_resolution, COARSE_RADIUS,
                                  c.max_gap, 0.0, out.coarse_field, out.coarse_meta,
                                  out.coarse_columns, out.coarse_spans, c.surface_bend,
-                                 c.surface_gap_ratio)
+                                 SURFACE_GAP_RATIO)
 
     def _inv_c2(self) -> float:
         """The fine field's Cauchy kernel, ``1/c²`` (0: the field holds plain ``d²``)."""

@@ -48,6 +48,14 @@ from swarmslam.runtime.step_result import StepResult
 from swarmslam.runtime.realtime.warm_up import LoopDrive
 
 PAGE = 4096  # bytes: commit_memory writes one byte per page
+# bytes: with commit_memory, glibc's mmap threshold is pinned here and its trim threshold at
+# twice it, so that freed memory goes back to the system
+MALLOC_MMAP_THRESHOLD = 131_072
+WARM_UP_SCANS = 120  # synthetic scans the warm-up runs: every kernel and path compiled once
+# The front end's evaluation budget tracks its measured cost: the newest tick weighs this much
+# in the running cost, and the budget never drops below this share of the configured one.
+FRONT_END_COST_SMOOTHING = 0.1
+MIN_EVALUATION_SHARE = 0.25
 # The core's objects, in any of its rooms, hold its buffers; GraphSlam lives at the core's top,
 # so its package is the prefix of every room's module.
 RUNTIME_PACKAGE = GraphSlam.__module__.rpartition(".")[0] + "."
@@ -169,8 +177,7 @@ class SlamRuntime:
         self.committed = bool(commit)
         self.reserved_bytes = commit_memory(self) if commit else 0
         # and keeps what it frees from staying resident (runtime/realtime/allocator.py)
-        self.allocator_pinned = bool(commit and rc.malloc_mmap_threshold > 0
-                                     and pin_malloc_thresholds(rc.malloc_mmap_threshold))
+        self.allocator_pinned = bool(commit and pin_malloc_thresholds(MALLOC_MMAP_THRESHOLD))
 
     # ------------------------------------------------------------------ Alg. 4, one tick
     def tick(self, deadline: float | None = None) -> StepResult | None:
@@ -210,13 +217,13 @@ class SlamRuntime:
         loop closure would otherwise cost a deadline or a few MB of resident memory mid-run).
         Returns the seconds taken."""
         t0 = time.perf_counter()
-        c, scans = self.config, self.config.runtime.warm_up_scans
+        c, scans = self.config, WARM_UP_SCANS
         scratch_config = override(c, {  # the same kernels on small buffers
             "capacity.max_nodes": 64, "capacity.max_edges": 256, "capacity.max_scans": scans + 1,
             "matcher.grid_cells": min(c.matcher.grid_cells, 320),
             # the wide loop search on every node whose ordinary search fails, on a small grid
-            "loop_closure.wide_after": 1, "loop_closure.wide_min_gap": 1,
-            "loop_closure.wide_radius": 2.0})
+            "loop_closure.wide_search.after": 1, "loop_closure.wide_search.min_gap": 1,
+            "loop_closure.wide_search.radius": 2.0})
         scratch_config = replace(scratch_config, runtime=replace(
             c.runtime, schedule="lockstep", commit_memory=False))
         scratch = SlamRuntime(scratch_config, seed=self.seed)
@@ -308,18 +315,18 @@ class SlamRuntime:
     # ------------------------------------------------------------------ adaptive budget
     def _evaluation_share(self, start: float) -> float:
         """The swarm's budget for this tick: what fits in the front end's share of the tick
-        budget at the measured cost, within [min_evaluation_share, 1]."""
+        budget at the measured cost, within [MIN_EVALUATION_SHARE, 1]."""
         rc = self.config.runtime
         available = start + rc.front_end_share * rc.tick_budget - self.clock()
         share = 1.0 if self.front_end_cost <= 0 else available / self.front_end_cost
-        share = min(max(share, rc.min_evaluation_share), 1.0)
+        share = min(max(share, MIN_EVALUATION_SHARE), 1.0)
         self.slam.set_evaluation_share(share)
         self.stats.evaluation_share = share
         return share
 
     def _learn_front_end_cost(self, took: float, share: float) -> None:
         full = took / share
-        a = self.config.runtime.front_end_cost_smoothing
+        a = FRONT_END_COST_SMOOTHING
         self.front_end_cost = full if self.front_end_cost <= 0 else \
             (1.0 - a) * self.front_end_cost + a * full
 

@@ -31,6 +31,11 @@ from swarmslam.runtime.matching.scan import (PointScan, finite_points, ranges_to
 MAX_STAMP = 1e10  # s
 MAX_COORDINATE = 1e6  # m
 MAX_HEADING = 1e4  # rad
+# Allowed on top of input.max_speed and max_turn_rate × the time between two readings (m,
+# rad): logs whose stamps were reordered put two readings metres or a radian apart within
+# milliseconds; a garbage line is metres or kilometres off.
+JUMP_SLACK = 1.0
+TURN_SLACK = 1.0
 
 
 def real_array(name: str, values, ndim: int) -> np.ndarray:
@@ -151,8 +156,8 @@ class ScanInbox:
         dt = 0.0 if first else max(stamp - self._reading_stamp, 0.0)
         turned = abs(math.remainder(theta - last[2], math.tau))
         jumped = not first and (
-            math.hypot(x - last[0], y - last[1]) > lim.jump_slack + lim.max_speed * dt
-            or turned > lim.turn_slack + lim.max_turn_rate * dt)
+            math.hypot(x - last[0], y - last[1]) > JUMP_SLACK + lim.max_speed * dt
+            or turned > TURN_SLACK + lim.max_turn_rate * dt)
         last[0], last[1], last[2] = x, y, theta
         self._reading_stamp = stamp
         if jumped:

@@ -29,16 +29,17 @@ from pathlib import Path
 
 import numpy as np
 
+from swarmslam.runtime.config import upgrade_names
 from swarmslam.runtime.front_end.odometry_scale import BINS as SCALE_BINS
 from swarmslam.runtime.realtime.writers import write_bytes_atomic
 
 FORMAT = "swarmslam-session"
-# 7: every component's state complete, its tallies saved whole; 6: the swarm's stall rule (its
+# 8: the configuration nested by component; 7: every component's state complete, its tallies saved whole; 6: the swarm's stall rule (its
 # run scalars grew); 5: the wide search's recent corrections; 4: the back end's wide loop
 # search; 3: loop edges carry their own information. A component whose state changes raises
 # the version and adds the migration from the one before (MIGRATIONS); restore() then reads
 # required keys only.
-VERSION = 7
+VERSION = 8
 ARRAY = "__array__"  # marks, in the meta, a leaf stored as an archive entry
 
 
@@ -98,7 +99,14 @@ def _from_6(state: dict) -> dict:
     return state
 
 
-MIGRATIONS = {6: _from_6}  # version → the function that brings its state to the next
+def _from_7(state: dict) -> dict:
+    """Version 7 → 8. The saved configuration in this version's names: moved fields in their
+    component's section, sentinels as ``enabled``, fixed ones dropped (config.upgrade_names)."""
+    state["config"] = upgrade_names(state["config"])
+    return state
+
+
+MIGRATIONS = {6: _from_6, 7: _from_7}  # version → the function that brings its state to the next
 
 
 def migrate(state: dict, version: int) -> dict:

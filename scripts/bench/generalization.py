@@ -231,9 +231,9 @@ def run_case(case: Case, work: Path, config: SlamConfig | None = None, floor: bo
         hook = None
         if oracle:  # a perfect match is never lost: nothing for the gate or the inlier test,
             # and nothing to fit odometry's scale for: along a corridor's axis it holds the truth
-            run_config = override(run_config, {"front_end.odometry_gate": None,
+            run_config = override(run_config, {"front_end.odometry_gate.enabled": False,
                                                "front_end.min_track_inliers": 0.0,
-                                               "front_end.calibrate_odometry_scale": False})
+                                               "front_end.odometry_scale.enabled": False})
             hook = TruthOracle(stamps, truth)
         m, runtime = replay_run(log, made["relations"], None, case.use_odometry, None, None,
                                 case.seed, run_config,
