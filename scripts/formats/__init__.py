@@ -1,3 +1,3 @@
-"""The file formats, one module each, reader and writer: CARMEN logs (the neutral log records too),
-ROS bags and MCAP, TUM trajectories, g2o graphs, Kümmerle relations, PGM + YAML maps and PNG
+"""The file formats, one module each, reader and writer, over one format-neutral log type
+(:mod:`swarmslam.formats.records`: ``ScanLog``): CARMEN logs, ROS bags and MCAP, TUM trajectories, g2o graphs, Kümmerle relations, PGM + YAML maps and PNG
 images, and the log readers by kind (docs/formats.md)."""

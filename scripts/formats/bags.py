@@ -2,7 +2,7 @@
 ``.mcap`` files, read and written with rosbags (pure Python, no ROS install; the extra
 ``bags``). docs/formats.md §9 says what is read from each message.
 
-    log = read_bag("run.bag")                   # the same CarmenLog the CARMEN reader gives
+    log = read_bag("run.bag")                   # the same ScanLog the CARMEN reader gives
     write_bag(log, "intel.mcap")                # LaserScan, Odometry and tf_static
 
 Reading: the LaserScan topic (found by type, or ``scan_topic``; several without one is an
@@ -35,8 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-from swarmslam.formats.carmen import (ODOMETRY_MAX_GAP, CarmenLog, LaserRecord, OdometryRecord,
-                              pose_between)
+from swarmslam.formats.carmen import ODOMETRY_MAX_GAP, pose_between
+from swarmslam.formats.records import LaserRecord, OdometryRecord, ScanLog
 from swarmslam.runtime.matching.scan import binned_ranges
 
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
@@ -206,8 +206,8 @@ def _one_topic(topics: dict, msgtype: str, chosen: str | None, what: str,
 
 
 def read_bag(path, scan_topic: str | None = None, odom_topic: str | None = None,
-             odom_frame: str = "odom", base_frame: str = "base_link", warn=None) -> CarmenLog:
-    """A bag's scans, with their odometry and the laser's mount, as a :class:`CarmenLog`
+             odom_frame: str = "odom", base_frame: str = "base_link", warn=None) -> ScanLog:
+    """A bag's scans, with their odometry and the laser's mount, as a :class:`ScanLog`
     (see the module doc). ``warn(text)`` is told what was assumed or skipped."""
     path = Path(path)
     if not path.exists():
@@ -282,7 +282,7 @@ def read_bag(path, scan_topic: str | None = None, odom_topic: str | None = None,
     for record in lasers:
         record.odometry = odometry_at(times, poses, record.timestamp)
         record.pose = record.odometry.copy()
-    return CarmenLog(str(path), lasers, odometry, skipped, examples, stopped)
+    return ScanLog(str(path), lasers, odometry, skipped, examples, stopped)
 
 
 def _open_messages(path: Path):
@@ -646,7 +646,7 @@ class BagWriter:
         shutil.rmtree(self.folder, ignore_errors=True)
 
 
-def write_bag(log: CarmenLog, path, fmt: str | None = None) -> Path:
+def write_bag(log: ScanLog, path, fmt: str | None = None) -> Path:
     """``log``'s scans (LaserScan on /scan), the odometry each scan has (Odometry on /odom,
     stamped with the scan) and the laser's mount (/tf_static; where it differs from scan to
     scan, as ROBOTLASER1's may, also on /tf with each scan), as a bag at ``path``."""

@@ -24,12 +24,12 @@ import gzip
 import io
 import math
 import sys
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from swarmslam.runtime.pose import between, compose
+from swarmslam.formats.records import LaserRecord, OdometryRecord, ScanLog
 from swarmslam.runtime.realtime.text_records import DataFormatError, records
 
 # Readings at or beyond this are "no return" in a FLASER log that does not show its own value
@@ -61,40 +61,6 @@ class _Skip(Exception):
 
 class CarmenFormatError(DataFormatError):
     """A line of a CARMEN log that cannot be read; says where and what."""
-
-
-@dataclass
-class LaserRecord:
-    timestamp: float  # ipc_timestamp
-    ranges: np.ndarray
-    angles: np.ndarray  # beam angles in the laser frame (rad)
-    pose: np.ndarray  # the pose the log gives with the scan (robot frame)
-    odometry: np.ndarray  # raw odometry at the scan
-    max_range: float
-    laser_offset: np.ndarray = field(default_factory=lambda: np.zeros(3))  # laser in robot
-    line: int = 0  # the record's line (a bag's message number)
-    time_increment: float = 0.0  # s between beams (a bag's LaserScan; 0: not known)
-
-
-@dataclass
-class OdometryRecord:
-    timestamp: float
-    pose: np.ndarray
-    line: int = 0
-
-
-@dataclass
-class CarmenLog:
-    path: str
-    lasers: list[LaserRecord]
-    odometry: list[OdometryRecord]
-    skipped: dict = field(default_factory=dict)  # records skipped, by the field that failed
-    skipped_examples: list = field(default_factory=list)  # "file:line: kind field: value"
-    stopped: str | None = None  # where a damaged file stopped being read (what came before kept)
-
-    def scan_poses(self) -> np.ndarray:
-        """The poses logged with the scans, ``(N, 3)``."""
-        return np.array([r.pose for r in self.lasers]).reshape(-1, 3)
 
 
 def flaser_angles(n: int) -> np.ndarray:
@@ -268,7 +234,7 @@ def flaser_no_return(ranges, fallback: float = FLASER_MAX_RANGE) -> float:
 
 
 def read_carmen(path, max_range: float | None = None, sort: bool = True,
-                synchronise: bool = True) -> CarmenLog:
+                synchronise: bool = True) -> ScanLog:
     """Read a CARMEN log. ``max_range`` applies to FLASER lines, which do not carry one:
     readings at or beyond it are "no return"; None: the log's own no-return reading
     (:func:`flaser_no_return`). ``synchronise``: FLASER scans take their odometry from the
@@ -310,7 +276,7 @@ def read_carmen(path, max_range: float | None = None, sort: bool = True,
         odometry.sort(key=lambda r: r.timestamp)
         if synchronise:
             odometry_at_scans(lasers, odometry)
-    return CarmenLog(str(path), lasers, odometry, skipped, examples)
+    return ScanLog(str(path), lasers, odometry, skipped, examples)
 
 
 # ODOM records farther apart than this (s) bracket no scan: the robot may have done anything.

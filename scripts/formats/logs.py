@@ -9,7 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from swarmslam.formats.bags import is_bag, read_bag
-from swarmslam.formats.carmen import CarmenLog, read_carmen
+from swarmslam.formats.carmen import read_carmen
+from swarmslam.formats.records import ScanLog
 
 
 @dataclass(frozen=True)
@@ -22,7 +23,7 @@ class BagOptions:
     base_frame: str = "base_link"
 
 
-def read_log(path, options: BagOptions | None = None, warn=None) -> CarmenLog:
+def read_log(path, options: BagOptions | None = None, warn=None) -> ScanLog:
     """The log's scans and odometry, from a ROS bag (by its name or folder) or a CARMEN log;
     ``warn(text)`` is told what a bag's reader assumed or skipped."""
     if str(path) != "-" and is_bag(path):
