@@ -865,11 +865,12 @@ SWITCHED_FIELDS = {
     "loop_closure.wide_after": ("loop_closure.wide_search", "after", 0)}
 
 
-def _flat(data: dict, where: str = "") -> dict:
+def flat_tables(data: dict, where: str = "") -> dict:
+    """Nested tables (a file's, a session's) as their leaves' dotted names → values."""
     flat = {}
     for key, value in data.items():
         path = f"{where}.{key}" if where else key
-        flat.update(_flat(value, path) if isinstance(value, dict) else {path: value})
+        flat.update(flat_tables(value, path) if isinstance(value, dict) else {path: value})
     return flat
 
 
@@ -886,7 +887,7 @@ def upgrade_names(data: dict) -> dict:
     fields at their old values dropped, moved fields renamed, sentinels turned into
     ``enabled``. A value this version cannot honour is refused by name."""
     changes = {}
-    for path, value in _flat(data).items():
+    for path, value in flat_tables(data).items():
         if path in REMOVED_FIELDS:
             off = REMOVED_FIELDS[path]
             if off is not None and (NONE if value is None else value) != off:
@@ -906,10 +907,11 @@ def upgrade_names(data: dict) -> dict:
                 changes[f"{section}.{name}"] = value
         else:
             changes[RENAMED_FIELDS.get(path, path)] = value
-    return _nested(changes)
+    return nested_tables(changes)
 
 
-def _nested(changes: dict) -> dict:
+def nested_tables(changes: dict) -> dict:
+    """Dotted names → values as the nested tables a file or a session holds."""
     nested: dict = {}
     for dotted, value in changes.items():
         node = nested
@@ -965,7 +967,7 @@ def _wants_float(hint) -> bool:
 
 def override(config, changes: dict):
     """``config`` with dotted keys changed: ``{"front_end.node_distance": 0.4}``."""
-    return from_dict(_nested(changes), config, type(config))
+    return from_dict(nested_tables(changes), config, type(config))
 
 
 def _toml_value(value) -> str:

@@ -5,33 +5,21 @@ from __future__ import annotations
 
 import copy
 
-from swarmslam.runtime.config import FIXED_FIELDS, RENAMED_FIELDS, SWITCHED_FIELDS
+from swarmslam.runtime.config import (FIXED_FIELDS, RENAMED_FIELDS, SWITCHED_FIELDS, flat_tables,
+                                      nested_tables)
 
 
 def older_config_names(config: dict) -> dict:
     """A configuration's tables (``to_dict``) in the flat names of version 7: moved fields
     back in their section, ``enabled`` back as a sentinel, fixed fields at their values."""
-    flat = {}
-
-    def walk(tables, where):
-        for key, value in tables.items():
-            path = f"{where}.{key}" if where else key
-            walk(value, path) if isinstance(value, dict) else flat.__setitem__(path, value)
-    walk(config, "")
+    flat = flat_tables(config)
     for old, new in RENAMED_FIELDS.items():
         flat[old] = flat.pop(new)
     for old, (section, name, sentinel) in SWITCHED_FIELDS.items():
         on, value = flat.pop(f"{section}.enabled"), flat.pop(f"{section}.{name}")
         flat[old] = value if on else sentinel
     flat.update((k, list(v) if isinstance(v, tuple) else v) for k, v in FIXED_FIELDS.items())
-    tables: dict = {}
-    for path, value in flat.items():
-        *parents, leaf = path.split(".")
-        node = tables
-        for part in parents:
-            node = node.setdefault(part, {})
-        node[leaf] = value
-    return tables
+    return nested_tables(flat)
 
 
 def as_version_7(state: dict) -> dict:

@@ -25,6 +25,7 @@ from swarmslam.runtime.config import (
     field_names,
     from_dict,
     from_toml,
+    nested_tables,
     load_config,
     override,
     preset,
@@ -336,15 +337,9 @@ def test_the_fixed_fields_values_are_the_constants_the_code_uses():
 
 
 def from_dict_tables(dotted: dict) -> dict:
-    """Dotted names as the nested tables a file or session holds."""
-    tables: dict = {}
-    for key, value in dotted.items():
-        *parents, leaf = key.split(".")
-        node = tables
-        for part in parents:
-            node = node.setdefault(part, {})
-        node[leaf] = list(value) if isinstance(value, tuple) else value
-    return tables
+    """Dotted names as the nested tables a TOML file holds (its lists for tuples)."""
+    return nested_tables({key: list(value) if isinstance(value, tuple) else value
+                          for key, value in dotted.items()})
 
 
 def test_a_removed_field_left_off_reads_and_one_turned_on_is_refused_by_name():
