@@ -25,6 +25,7 @@ from swarmslam.formats.bags import BagRecorder
 from swarmslam.outputs import check_writable, clean_stale, output_set, write_results
 from swarmslam.view.run_view import frame_of
 from swarmslam.formats.tum import write_tum
+from swarmslam.runs import RunOptions, open_runtime
 
 
 def slam_config_for(model_name: str, rate_hz: float | None = None) -> SlamConfig:
@@ -35,42 +36,30 @@ def slam_config_for(model_name: str, rate_hz: float | None = None) -> SlamConfig
 
 
 def run_live(port: str, model: str = "a1", mode: str = "typical", out_dir="swarmslam-live",
-             rate_hz: float | None = None, seconds: float | None = None, resume=None,
-             echo=print, stop: threading.Event | None = None,
-             config: SlamConfig | None = None, localize=None, watch=None,
-             baud: int | None = None, session_changes: dict | None = None,
+             rate_hz: float | None = None, seconds: float | None = None,
+             options: RunOptions | None = None, echo=print,
+             stop: threading.Event | None = None, watch=None, baud: int | None = None,
              bag=None) -> dict:
-    """``config``: the whole configuration (default: the model's preset); ``rate_hz``
-    overrides its tick rate. ``resume``: a session extended from wherever the scanner is in
-    its map (found first); ``localize``: a session to localize in, never changed. Both take
-    the session's configuration, with ``session_changes``
-    (:func:`swarmslam.runtime.config.session_changes`: search and tracking only).
-    ``watch``: a :class:`swarmslam.view.run_view.RunWatch` shown after every tick that took a scan.
+    """``options``: how the run starts (:class:`swarmslam.runs.RunOptions`): a new map with
+    its configuration (default: the model's preset), resuming a session from wherever the
+    scanner is in its map (found first), or localizing in one, never changed. ``rate_hz``
+    overrides the tick rate, a session's too. ``watch``: a
+    :class:`swarmslam.view.run_view.RunWatch` shown after every tick that took a scan.
     ``baud``: a rate to switch the link to after connecting (where the model allows).
     ``bag``: a ROS bag to record every scan to (its format from its name,
     :mod:`swarmslam.formats.bags`), written whole when the run ends."""
+    options = options or RunOptions()
     out = Path(out_dir)
     check_writable(out)
     clean_stale(out)
-    if (localize or resume) and config is not None:
-        raise ValueError("a localized or resumed run takes its configuration from the session "
-                         "(session_changes may change its search and tracking)")
-    changes = dict(session_changes or {})
-    if rate_hz is not None:
-        changes["runtime.rate_hz"] = rate_hz
+    changes = {} if rate_hz is None else {"runtime.rate_hz": rate_hz}
     sensor = slam_config_for(model).sensor  # the scanner on the port now
-    if localize:
-        runtime = SlamRuntime.localize(localize, changes=changes, sensor=sensor)
-        echo(f"localizing in {localize}: {runtime.slam.saved.n_nodes} saved nodes (read-only)")
-    elif resume:
-        runtime = SlamRuntime.resume(resume, anywhere=True, changes=changes, sensor=sensor)
-        echo(f"resumed {resume}: {runtime.slam.n_nodes} nodes; finding where it starts")
-    else:
-        if config is None:
-            config = slam_config_for(model, rate_hz)
-        elif rate_hz is not None:
-            config = override(config, {"runtime.rate_hz": rate_hz})
-        runtime = SlamRuntime(config)
+    runtime = open_runtime(options, options.config or slam_config_for(model), changes, sensor)
+    if options.localize:
+        echo(f"localizing in {options.localize}: {runtime.slam.saved.n_nodes} saved nodes "
+             f"(read-only)")
+    elif options.resume:
+        echo(f"resumed {options.resume}: {runtime.slam.n_nodes} nodes; finding where it starts")
     if runtime.session_note:
         echo(runtime.session_note)
     inbox = runtime.inbox

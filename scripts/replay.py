@@ -28,6 +28,7 @@ from swarmslam.progress import Progress
 from swarmslam.formats.relations import read_relations
 from swarmslam.view.run_view import frame_of
 from swarmslam.formats.tum import write_tum
+from swarmslam.runs import RunOptions, open_runtime
 
 
 def _largest(section, name: str):
@@ -51,11 +52,10 @@ def node_bound(lasers, config: SlamConfig | None, odometry: bool) -> int:
     return min(most, 2 * math.ceil(path / fe.node_distance + turn / fe.node_angle) + 2)
 
 
-def replay_config(config: SlamConfig | None = None, optimizer: str | None = None,
-                  scans: int = 0, schedule: str = "lockstep", nodes: int = 0,
-                  beams: int = 0) -> SlamConfig:
-    """``config`` (default: the defaults) for a replay: ``optimizer`` if given, the trajectory
-    sized for the log's ``scans``, each stored scan for its largest scan's ``beams`` where
+def replay_config(config: SlamConfig | None = None, scans: int = 0,
+                  schedule: str = "lockstep", nodes: int = 0, beams: int = 0) -> SlamConfig:
+    """``config`` (default: the defaults) for a replay: the trajectory sized for the log's
+    ``scans``, each stored scan for its largest scan's ``beams`` where
     the configuration holds fewer points (the runtime keeps a scan's first
     ``sensor.max_points`` points: a 360° scanner's last sector would be lost), and the
     runtime's ``schedule`` (lockstep: the whole back end every tick, bit for bit
@@ -78,8 +78,6 @@ def replay_config(config: SlamConfig | None = None, optimizer: str | None = None
         changes["capacity.max_nodes"] = nodes
         changes["capacity.max_edges"] = min(_largest(cap, "max_edges"), max(
             cap.max_edges, math.ceil(cap.max_edges / cap.max_nodes * nodes)))
-    if optimizer is not None:
-        changes["matcher.swarm.optimizer"] = optimizer
     return override(config, changes)
 
 
@@ -171,67 +169,40 @@ def log_seconds(lasers) -> float:
     return float(stamps.max() - stamps.min()) if len(stamps) else 0.0
 
 
-def replay(log_path, relations_path=None, optimizer: str | None = None, odometry=True,
-           out_dir=None, limit=None, seed=0, config: SlamConfig | None = None, label="replay",
-           echo=print, schedule: str = "lockstep", localize=None, resume=None,
-           start: int = 0, watch=None, session_changes: dict | None = None,
-           bag: BagOptions | None = None) -> dict:
-    """Every scan of the log through :class:`SlamRuntime`, one tick each, as fast as it goes.
-    The default schedule is lockstep (the whole back end every tick, as ``GraphSlam.step``);
-    ``budgeted`` slices it as on a robot. ``optimizer`` overrides ``config``'s.
+def replay(log_path, relations_path=None, options: RunOptions | None = None, *,
+           odometry: bool = True, out_dir=None, limit=None, start: int = 0,
+           bag: BagOptions | None = None, label: str = "replay", watch=None) -> dict:
+    """Every scan of the log through :class:`SlamRuntime`, one tick each, as fast as it goes,
+    started as ``options`` say (:class:`swarmslam.runs.RunOptions`: new, localized in a
+    session or resuming one; default: a new run, seed 0). A replay's schedule is lockstep
+    unless ``options`` say otherwise (the whole back end every tick, as ``GraphSlam.step``:
+    bit for bit repeatable); ``budgeted`` slices it as on a robot.
 
-    ``localize``: a session file to localize in (its map is not changed; the outputs are the
-    trajectory and ``localization.json``). ``resume``: a session to extend from wherever the
-    log starts in it (multi-session mapping). Both take their configuration from the session,
-    with ``session_changes`` (:func:`swarmslam.runtime.config.session_changes`: search and tracking only).
-    ``start``: the first scan replayed. ``watch``: a :class:`swarmslam.view.run_view.RunWatch` shown
-    every tick (closed at the end)."""
-    return replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, seed,
-                      config, label, schedule, localize=localize, resume=resume,
-                      start=start, watch=watch, session_changes=session_changes, bag=bag)[0]
+    A localized replay's outputs are the trajectory and ``localization.json`` (the session's
+    map is not changed); a resumed one extends the session's map from wherever the log
+    starts in it (multi-session mapping). ``odometry``: False replays the scans alone.
+    ``start``: the first scan replayed; ``limit``: how many. ``watch``: a
+    :class:`swarmslam.view.run_view.RunWatch` shown every tick (closed at the end)."""
+    return replay_run(log_path, relations_path, options, odometry=odometry, out_dir=out_dir,
+                      limit=limit, start=start, bag=bag, label=label, watch=watch)[0]
 
 
-def replay_runtime(scans: int, optimizer=None, seed=0, config: SlamConfig | None = None,
-                   schedule: str = "lockstep", localize=None, resume=None,
-                   session_changes: dict | None = None, nodes: int = 0,
-                   beams: int = 0) -> SlamRuntime:
-    """The runtime a replay of ``scans`` scans (making at most ``nodes`` nodes, of at most
-    ``beams`` beams) runs: new, localizing in a session, or extending one from an unknown
-    place."""
-    if localize is None and resume is None:
-        return SlamRuntime(replay_config(config, optimizer, scans, schedule, nodes, beams),
-                           seed=seed)
-    if config is not None:
-        raise ValueError("a localized or resumed replay takes its configuration from the "
-                         "session (session_changes may change its search and tracking)")
-    changes = {**(session_changes or {}), "runtime.schedule": schedule}
-    if optimizer is not None:
-        changes["matcher.swarm.optimizer"] = optimizer
-    if localize is not None:
-        changes["capacity.max_scans"] = scans
-        return SlamRuntime.localize(localize, changes=changes)
-    return SlamRuntime.resume(resume, anywhere=True, changes=changes, more_scans=scans)
-
-
-def replay_run(log_path, relations_path=None, optimizer: str | None = None, odometry=True,
-               out_dir=None, limit=None, seed=0, config: SlamConfig | None = None,
-               label="replay", schedule: str = "lockstep", before_scan=None, localize=None,
-               resume=None, start: int = 0, watch=None, session_changes=None,
-               bag: BagOptions | None = None):
+def replay_run(log_path, relations_path=None, options: RunOptions | None = None, *,
+               odometry: bool = True, out_dir=None, limit=None, start: int = 0,
+               bag: BagOptions | None = None, label: str = "replay", watch=None,
+               before_scan=None):
     """:func:`replay`, returning ``(metrics, runtime)``; ``before_scan(k, runtime)`` is called
     before scan ``k`` is processed (benchmarks use it to follow the run)."""
     try:
-        return _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, seed,
-                           config, label, schedule, before_scan, localize, resume, start, watch,
-                           session_changes, bag)
+        return _replay_run(log_path, relations_path, options or RunOptions(), odometry,
+                           out_dir, limit, start, bag, label, watch, before_scan)
     finally:
         if watch is not None:
             watch.close()
 
 
-def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, seed, config,
-                label, schedule, before_scan, localize, resume, start, watch, session_changes,
-                bag):
+def _replay_run(log_path, relations_path, options: RunOptions, odometry, out_dir, limit, start,
+                bag, label, watch, before_scan):
     if out_dir is not None:
         check_writable(out_dir)  # before the run, not after it
     log = read_log(log_path, bag, warn=lambda text: print(text, file=sys.stderr))
@@ -249,19 +220,22 @@ def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, s
             raise ValueError(f"{relations_path}: none of its {len(relations)} relations has "
                              f"both ends at scans of {log_path} (within 0.1 ms) — the "
                              f"relations of another log?")
-    if localize is None and resume is None:  # (a session's configuration is its own)
-        config = bag_sweep(lasers, config, warn=lambda text: print(f"{log_path}: {text}",
-                                                                   file=sys.stderr))
-    beams = max(len(r.ranges) for r in lasers)
-    runtime = replay_runtime(len(lasers), optimizer, seed, config, schedule, localize, resume,
-                             session_changes, node_bound(lasers, config, odometry), beams)
+    schedule = options.schedule or "lockstep"
+    config = None
+    if options.session is None:  # (a session's configuration is its own)
+        config = bag_sweep(lasers, options.config, warn=lambda text: print(
+            f"{log_path}: {text}", file=sys.stderr))
+        config = replay_config(config, len(lasers), schedule,
+                               node_bound(lasers, config, odometry),
+                               max(len(r.ranges) for r in lasers))
+    runtime = open_runtime(options, config, {"runtime.schedule": schedule}, scans=len(lasers))
     config = runtime.config
     slam = runtime.slam
     # Every kernel compiled or loaded before the clock starts, as a robot warms up before its
     # first tick: the real-time factor is the run's, not the compiler's (after a checkout that
     # changed a source, numba compiles every kernel afresh: docs/runtime.md §8).
     warm_up_seconds = runtime.warm_up()
-    scan = PointScan(beams)
+    scan = PointScan(max(len(r.ranges) for r in lasers))
     latencies = np.zeros(len(lasers))
     progress = Progress(len(lasers), label)
     start_time = time.perf_counter()
@@ -290,8 +264,8 @@ def _replay_run(log_path, relations_path, optimizer, odometry, out_dir, limit, s
         "latency_ms_p99": float(1e3 * np.percentile(latencies, 99)),
     }
     if runtime.localizing:
-        return localization_results(runtime, log, log_path, localize, lasers, odometry, timing,
-                                    relations, out_dir), runtime
+        return localization_results(runtime, log, log_path, options.localize, lasers, odometry,
+                                    timing, relations, out_dir), runtime
     stamps, poses = slam.trajectory()
     metrics = {
         "log": str(log_path),

@@ -50,6 +50,7 @@ from swarmslam.bench.slam import LOGS
 from swarmslam.datasets import find_datasets, require
 from swarmslam.progress import Progress
 from swarmslam.replay import replay_run
+from swarmslam.runs import RunOptions
 
 # what a results line keeps of a replay's metrics (the runtime's full report stays out)
 KEPT = ("eT", "eT_std", "eR_deg", "eR_std", "eT_local", "eR_local_deg", "eT_global",
@@ -208,8 +209,8 @@ def run_replay(run: Run, log: Path, relations: Path | None, odometry: bool, limi
     replay's progress lines are not shown (the sweep shows its own)."""
     config = override(base_config, dict(run.changes))
     with contextlib.redirect_stderr(io.StringIO()):
-        metrics, _ = replay_run(log, relations, run.optimizer, odometry, None, limit or None,
-                                run.seed, config=config, label=run.key)
+        metrics, _ = replay_run(log, relations, RunOptions(config, run.optimizer, run.seed),
+                                odometry=odometry, limit=limit or None, label=run.key)
     return {"key": run.key, "log": run.log, "optimizer": run.optimizer, "seed": run.seed,
             "variant": run.variant, "changes": dict(run.changes), "odometry": odometry,
             "limit": limit, "pid": os.getpid(),

@@ -15,6 +15,7 @@ from swarmslam.formats.carmen import (
     regular_stream,
 )
 from swarmslam.replay import replay_run, robot_frame_scan
+from swarmslam.runs import RunOptions
 
 FLASER = "FLASER 4 1.0 2.0 50.0 0.5 0.1 0.2 0.3 0.1 0.2 0.3 {t} host {t}\n"
 ODOM = "ODOM 1.0 2.0 0.5 0.0 0.0 0.0 {t} host {t}\n"
@@ -180,9 +181,10 @@ def test_a_replay_takes_the_configured_sensors_ranges(tmp_path):
     and the run says so rather than ok."""
     log = flaser_log(tmp_path, 81.83, scans=5)
     short = override(SlamConfig(), {"sensor.max_range": 2.0})
-    metrics, _ = replay_run(log, config=short, label="short")
+    metrics, _ = replay_run(log, options=RunOptions(short), label="short")
     assert metrics["scans_refused"] == 5 and metrics["status"] != "ok"
-    metrics, _ = replay_run(log, config=override(short, {"sensor.max_range": 5.0}), label="5 m")
+    metrics, _ = replay_run(log, options=RunOptions(override(short, {"sensor.max_range": 5.0})),
+                            label="5 m")
     assert metrics["scans_refused"] == 0 and metrics["status"] == "ok"
 
 

@@ -9,6 +9,7 @@ import numpy as np
 
 from swarmslam.cli import main
 from swarmslam.replay import node_bound, replay_config, replay_run
+from swarmslam.runs import RunOptions
 from swarmslam.runtime.config import SlamConfig, override
 
 PROBE = """
@@ -55,9 +56,10 @@ def test_a_replay_sizes_the_pose_graph_for_the_log_in_lockstep(tmp_path):
     assert (sized.capacity.max_nodes, sized.capacity.max_edges) == (61, 244)
     assert replay_config(small, scans=60, schedule="budgeted", nodes=61).capacity == small.capacity
     assert replay_config(None, scans=60, nodes=61).capacity == SlamConfig().capacity  # room
-    metrics, _ = replay_run(log, config=small, label="lockstep")
+    metrics, _ = replay_run(log, options=RunOptions(small), label="lockstep")
     assert metrics["status"] == "ok" and metrics["nodes"] > 3
-    metrics, _ = replay_run(log, config=small, schedule="budgeted", label="budgeted")
+    metrics, _ = replay_run(log, options=RunOptions(small, schedule="budgeted"),
+                            label="budgeted")
     assert metrics["nodes"] == 3 and metrics["status"].startswith("capacity reached")
 
 
@@ -89,7 +91,7 @@ def test_a_replay_keeps_every_beam_of_a_scanner_larger_than_the_configuration(tm
     assert main(["simlog", str(log), "--scanner", "rplidar-a2", "--rate", "5",
                  "--seconds", "4"]) == 0
     small = override(SlamConfig(), {"sensor.max_points": 400})
-    _, runtime = replay_run(log, config=small, label="a2")
+    _, runtime = replay_run(log, options=RunOptions(small), label="a2")
     assert runtime.config.sensor.max_points == 720
     nodes = runtime.slam.nodes
     assert nodes.counts[: runtime.slam.graph.n_nodes].max() > 400

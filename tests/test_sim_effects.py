@@ -14,6 +14,7 @@ from swarmslam.cli import main
 from swarmslam.evaluation.metrics import kummerle
 from swarmslam.formats.relations import read_relations
 from swarmslam.replay import replay_run
+from swarmslam.runs import RunOptions
 from swarmslam_sim.lidar import Lidar, LidarConfig
 from swarmslam_sim.survey import (
     EFFECTS,
@@ -183,7 +184,7 @@ def test_scans_overrule_stale_odometry_in_fast_turns(tmp_path):
                          ("odometry trusted", override(SlamConfig(), {
                              "front_end.odometry_gate.fit": 1.0,
                              "front_end.odometry_gate.explained": 1.0}))):
-        _, runtime = replay_run(made, config=config, label=name)
+        _, runtime = replay_run(made, options=RunOptions(config), label=name)
         stamps, poses = runtime.slam.trajectory()
         scores[name] = kummerle(stamps, poses, relations)
         scores[name]["overruled"] = runtime.slam.front_end.counts.overruled_odometry
@@ -209,7 +210,7 @@ def test_a_pivot_crowded_by_people_is_found_on_the_fine_field(tmp_path):
     worst, sought = {}, {}
     for name, config in (("defaults", SlamConfig()), ("off", override(SlamConfig(), {
             "front_end.recovery.heading_step": 0.0}))):
-        _, runtime = replay_run(made, config=config, label=name, seed=67)
+        _, runtime = replay_run(made, options=RunOptions(config, seed=67), label=name)
         stamps, poses = runtime.slam.trajectory()
         worst[name] = kummerle(stamps, poses, relations)["eR_short_max_deg"]
         sought[name] = runtime.slam.front_end.counts.sought_matches

@@ -13,6 +13,7 @@ import ray  # the 'scale' extra, which the test install has
 
 from swarmslam.runtime.config import SlamConfig, override
 from swarmslam.replay import replay_run
+from swarmslam.runs import RunOptions
 from swarmslam.simlog import write_simlog
 from swarmslam.sweep import SpecError, read_results, read_spec, summarise, sweep
 
@@ -48,8 +49,8 @@ def test_a_sweep_gives_replays_figures_and_resumes_without_redoing(tiny_log, tmp
     # each run is `swarmslam replay` with its seed and changes
     for run, record in zip(runs, records):
         base = override(SlamConfig(), dict(run.changes))
-        metrics, _ = replay_run(tiny_log, spec.logs[str(tiny_log)][1], "abc", True, None, None,
-                                run.seed, config=base)
+        metrics, _ = replay_run(tiny_log, spec.logs[str(tiny_log)][1],
+                                RunOptions(base, "abc", run.seed))
         assert record["eT"] == metrics["eT"] and record["loops_accepted"] == metrics[
             "loops_accepted"], run.key
     assert len({r["eT"] for r in records}) > 1  # the variants and seeds do differ

@@ -30,6 +30,7 @@ from swarmslam.runtime.pose_graph import LOOP
 from swarmslam.evaluation.metrics import nearest_stamps
 from swarmslam.view.plots import bars, require_matplotlib
 from swarmslam.replay import replay_run
+from swarmslam.runs import RunOptions
 from swarmslam.simlog import write_simlog
 from swarmslam.formats.tum import read_tum
 from swarmslam_sim.survey import EFFECTS, ODOMETRY, SCANNERS, SITES, rotates
@@ -235,8 +236,8 @@ def run_case(case: Case, work: Path, config: SlamConfig | None = None, floor: bo
                                                "front_end.min_track_inliers": 0.0,
                                                "front_end.odometry_scale.enabled": False})
             hook = TruthOracle(stamps, truth)
-        m, runtime = replay_run(log, made["relations"], None, case.use_odometry, None, None,
-                                case.seed, run_config,
+        m, runtime = replay_run(log, made["relations"], RunOptions(run_config, seed=case.seed),
+                                odometry=case.use_odometry,
                                 label=f"{case.name}{' floor' if oracle else ''}",
                                 before_scan=hook)
         slam = runtime.slam

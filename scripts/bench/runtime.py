@@ -39,6 +39,7 @@ from swarmslam.view.plots import latency_histograms, lines_plot, require_matplot
 from swarmslam.progress import Progress
 from swarmslam.formats.relations import read_relations
 from swarmslam.replay import replay, robot_frame_scan
+from swarmslam.runs import RunOptions
 from swarmslam.view.run_view import RunWatch, frame_of
 from swarmslam.bench.record import save_results
 
@@ -260,8 +261,8 @@ def bench_runtime(data_dir: Path, optimizer="abc", realtime_minutes=2.0, traced_
               "runtime_config": {"rate_hz": rc.rate_hz, "tick_budget_s": rc.tick_budget}}
     result["max_speed"], latency = max_speed(scans, relations, config, echo, seed)
     latencies = {"max speed": latency}
-    unsliced = replay(log_path, rel_path, optimizer, True, None, limit, seed=seed,
-                      label="unsliced", config=config)
+    unsliced = replay(log_path, rel_path, RunOptions(config, optimizer, seed), limit=limit,
+                      label="unsliced")
     result["unsliced"] = {k: unsliced[k] for k in ("eT", "eT_std", "eR_deg", "eR_std",
                                                    "loops_accepted", "latency_ms_p99")}
     result["traced"] = traced(scans, config, traced_ticks)

@@ -20,6 +20,7 @@ from swarmslam.view.plots import require_matplotlib, slam_errors_over_time, slam
 from swarmslam.formats.relations import read_relations
 from swarmslam.evaluation.relations_audit import audit_log, fits_of_gross_failures, short_tail_apart
 from swarmslam.replay import replay_run
+from swarmslam.runs import RunOptions
 from swarmslam.bench.record import save_results
 
 LOGS = {"intel": ("intel.clf.gz", "intel.relations"), "aces": ("aces.clf.gz", "aces.relations"),
@@ -78,8 +79,10 @@ def bench_slam(data_dir: Path, optimizers=("abc", "pso", "fa"), logs=tuple(LOGS)
                 for seed in seeds:
                     label = f"{name} {optimizer} {'odom' if odometry else 'scans'} seed {seed}"
                     run_out = None if out_dir is None else Path(out_dir) / label.replace(" ", "-")
-                    m, runtime = replay_run(log_path, rel_path, optimizer, odometry, run_out,
-                                            limit, seed, label=label, config=config)
+                    m, runtime = replay_run(log_path, rel_path,
+                                            RunOptions(config, optimizer, seed),
+                                            odometry=odometry, out_dir=run_out, limit=limit,
+                                            label=label)
                     if plots:
                         plot_run(plots, label, runtime, relations)
                     m.update(audited_tail(runtime, relations, audit, scans, scan_stamps,

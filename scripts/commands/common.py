@@ -9,6 +9,7 @@ import math
 import signal
 
 from swarmslam.runtime.config import PRESETS, SlamConfig, load_config, preset, session_changes
+from swarmslam.runs import SESSION_TAKES_ITS_CONFIGURATION, RunOptions
 
 
 UNUSABLE = ("no usable scan", "mostly unusable input")
@@ -25,17 +26,18 @@ def run_config(args, default_preset: str) -> SlamConfig | None:
     return load_config(args.config, base) if args.config else base
 
 
-def session_overrides(args) -> dict | None:
-    """With ``--localize``/``--resume``: the changes ``--config FILE`` makes to the session's
-    own configuration (only its search and tracking: :data:`swarmslam.runtime.config.SESSION_SECTIONS`).
-    None without a session."""
-    if not (args.localize or args.resume):
-        return None
+def run_options(args, default_preset: str, **given) -> RunOptions:
+    """The :class:`RunOptions` of ``--config``, ``--preset``, ``--localize`` and ``--resume``
+    (a new run: :func:`run_config`; a session's: what ``--config FILE`` changes of its own
+    configuration, only its search and tracking), with ``given``."""
+    localize, resume = getattr(args, "localize", None), getattr(args, "resume", None)
+    if not (localize or resume):
+        return RunOptions(config=run_config(args, default_preset), **given)
     if args.preset:
-        raise ValueError("--localize and --resume take the configuration saved in the session; "
-                         "drop --preset (--config may change its [localization] and "
-                         "[relocalization])")
-    return session_changes(args.config) if args.config else {}
+        raise ValueError(SESSION_TAKES_ITS_CONFIGURATION)
+    return RunOptions(localize=localize, resume=resume,
+                      session_changes=session_changes(args.config) if args.config else {},
+                      **given)
 
 
 @contextlib.contextmanager

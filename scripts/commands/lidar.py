@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from swarmslam.commands.common import (MODELS, at_least_one, config_options, positive, run_config,
-                                       session_overrides, sigterm_as_ctrl_c, view_options)
+from swarmslam.commands.common import (MODELS, at_least_one, config_options, positive,
+                                       run_options, sigterm_as_ctrl_c, view_options)
 from swarmslam.view.run_view import RunWatch
 
 # (what the command does, reads and writes; an example), shown by its --help
@@ -48,12 +48,9 @@ def _lidar(args) -> int:
     from swarmslam.live import run_live
 
     with sigterm_as_ctrl_c():
-        changes = session_overrides(args)
-        summary = run_live(
-            args.port, args.model, args.mode, args.out, args.rate, args.seconds, args.resume,
-            config=None if changes is not None else run_config(args, f"rplidar-{args.model}"),
-            localize=args.localize, watch=RunWatch.from_args(args), baud=args.baud,
-            session_changes=changes, bag=args.bag)
+        summary = run_live(args.port, args.model, args.mode, args.out, args.rate, args.seconds,
+                           run_options(args, f"rplidar-{args.model}"),
+                           watch=RunWatch.from_args(args), baud=args.baud, bag=args.bag)
     return 1 if summary["status"].startswith("no scans") else 0
 
 

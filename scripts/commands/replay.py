@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from swarmslam.commands.common import (D, UNUSABLE, at_least_one, bag, bag_options, config_options,
-                                       run_config, session_overrides, view_options, whole)
+                                       run_options, view_options, whole)
 from swarmslam.runtime.config import DEFAULT_PRESET, OPTIMIZERS
 from swarmslam.runtime.realtime.inbox import skipped_text
 from swarmslam.view.run_view import RunWatch
@@ -49,12 +49,9 @@ def add(sub) -> None:
 def _replay(args) -> int:
     from swarmslam.replay import replay
 
-    changes = session_overrides(args)
-    m = replay(args.log, args.relations, args.optimizer, not args.no_odometry, args.out,
-               args.limit, args.seed,
-               config=None if changes is not None else run_config(args, DEFAULT_PRESET),
-               localize=args.localize, resume=args.resume, start=args.start,
-               watch=RunWatch.from_args(args), session_changes=changes, bag=bag(args))
+    options = run_options(args, DEFAULT_PRESET, optimizer=args.optimizer, seed=args.seed)
+    m = replay(args.log, args.relations, options, odometry=not args.no_odometry, out_dir=args.out,
+               limit=args.limit, start=args.start, bag=bag(args), watch=RunWatch.from_args(args))
     if args.localize:
         r = m["runtime"]
         print(f"{m['scans']} scans localized in {args.localize}: {m['scans_with_pose']} with a "
