@@ -161,8 +161,8 @@ class GraphSlam:
             "loops_accepted": self.loops_closed,
             "tracking": asdict(self.front_end.counts),
             "loops": asdict(b.loops.counts),
-            "loop_searches": {"enqueued": q.enqueued, "done": q.searched, "pending": b.size
-                              + (b.node >= 0), "dropped": q.dropped},
+            "loop_searches": {"enqueued": q.enqueued, "done": q.searched,
+                              "pending": b.queue.size + (b.node >= 0), "dropped": q.dropped},
             "back_end_slices": {name: int(v) for name, v in zip(SLICE_NAMES, b.slices)},
             "wide_searches": b.wide.counts(),
             "deferred_ticks": q.deferred,

@@ -106,9 +106,9 @@ def test_a_candidate_whose_match_failed_a_node_ago_is_passed_over_until_the_grap
     assert passed_over > 0
     restored = GraphSlam(config, seed=0)
     restored.restore(slam.state())
-    assert np.array_equal(restored.back_end.failed[: restored.back_end.n_failed],
-                          slam.back_end.failed[: slam.back_end.n_failed])
-    assert restored.back_end.failed_node == slam.back_end.failed_node
+    assert np.array_equal(restored.back_end.failed.state()["failed"],
+                          slam.back_end.failed.state()["failed"])
+    assert restored.back_end.failed.node == slam.back_end.failed.node
     _, poses = slam.trajectory()
     assert np.hypot(*(poses[:, :2] - truth[:, :2]).T).mean() < 0.05
 

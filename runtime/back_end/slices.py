@@ -34,6 +34,7 @@ from swarmslam.runtime.config import SlamConfig
 from swarmslam.runtime.back_end.loop_alignment import LoopAlignment
 from swarmslam.runtime.back_end.loop_closure import LoopCloser
 from swarmslam.runtime.back_end.loop_trial import ClosureTrial
+from swarmslam.runtime.back_end.search_queue import FailedMatches, SearchQueue
 from swarmslam.runtime.node_scans import NodeScans
 from swarmslam.runtime.pose_graph import LOOP, PoseGraph
 from swarmslam.runtime.tallies import restore_counts
@@ -80,14 +81,9 @@ class BackEnd:
         self.closure = ClosureTrial(config, graph, self.loops)
         self.revision = 0  # bumped whenever a kept closure moved the optimised poses
         # The queue of nodes awaiting their search, and the search under way.
-        self.queue = np.zeros(rc.loop_queue, np.int64)
-        self.head = 0  # index of the oldest queued node
-        self.size = 0
+        self.queue = SearchQueue(rc.loop_queue)
         self.candidates = np.zeros(lc.max_attempts, np.int64)
-        self.failed = np.zeros(lc.max_attempts, np.int64)  # candidates whose match failed ...
-        self.n_failed = 0
-        self.failed_node = -1  # ... for this node's search
-        self.failed_revision = -1  # ... with the graph at this revision
+        self.failed = FailedMatches(lc.max_attempts)
         self.n_candidates = 0
         self.next_candidate = 0
         self.node = -1  # node whose search is under way (-1: none)
@@ -112,22 +108,13 @@ class BackEnd:
 
     # ------------------------------------------------------------------ the queue
     def enqueue(self, node: int) -> None:
-        """Queue ``node``'s loop search (Alg. 7 runs when :meth:`work` gets to it)."""
-        cap = self.queue.shape[0]
-        if self.size == cap:  # drop the oldest search
-            self.head = (self.head + 1) % cap
-            self.size -= 1
-            self.counts.dropped += 1
-        self.queue[(self.head + self.size) % cap] = node
-        self.size += 1
+        """Queue ``node``'s loop search (Alg. 7 runs when :meth:`work` gets to it); a full
+        queue drops its oldest search."""
+        self.counts.dropped += self.queue.push(node)
         self.counts.enqueued += 1
 
     def pending(self) -> bool:
-        return self.node >= 0 or self.size > 0
-
-    def queued(self) -> list[int]:
-        cap = self.queue.shape[0]
-        return [int(self.queue[(self.head + k) % cap]) for k in range(self.size)]
+        return self.node >= 0 or self.queue.size > 0
 
     # ------------------------------------------------------------------ slicing
     def work(self, clock, budget_end: float | None) -> int:
@@ -165,15 +152,12 @@ class BackEnd:
 
     def _select(self, sliced: bool) -> None:
         """The next queued node's candidates (Alg. 7, steps 1–2)."""
-        cap = self.queue.shape[0]
-        self.node = int(self.queue[self.head])
-        self.head = (self.head + 1) % cap
-        self.size -= 1
+        self.node = self.queue.pop()
         if self._closed_lately(self.node):
             self._finish()
             return
-        n = self._take_untried(self.loop_candidates(self.node))
-        self.failed_node, self.failed_revision, self.n_failed = self.node, self.revision, 0
+        n = self.failed.take_untried(self.loop_candidates(self.node), self.node, self.revision,
+                                     self.candidates)
         self.n_candidates = n
         self.next_candidate = 0
         self.phase = ALIGN
@@ -186,9 +170,8 @@ class BackEnd:
         z = (self.align_loop(candidate, self.node, self.guess, self._wide_window)
              if self.widened else self.align_loop(candidate, self.node))
         if z is None:
-            if not self.widened and self.n_failed < self.failed.shape[0]:
-                self.failed[self.n_failed] = candidate
-                self.n_failed += 1
+            if not self.widened:
+                self.failed.add(candidate)
             self._next_candidate()
         else:
             self.z[:] = z
@@ -251,22 +234,6 @@ class BackEnd:
             k -= 1
         return False
 
-    def _take_untried(self, found) -> int:
-        """Keep the first ``max_attempts`` of ``found`` as the node's candidates, passing over
-        those whose match failed for the node just before with the graph as it is now: half
-        a metre on, against the same submap, such a match mostly fails again, and the attempt
-        is better spent on the next candidate (docs/method.md §5, step 3). Returns how many."""
-        repeat = self.failed_node == self.node - 1 and self.failed_revision == self.revision
-        n = 0
-        for candidate in found:
-            if n == self.candidates.shape[0]:
-                break
-            if repeat and candidate in self.failed[: self.n_failed]:
-                continue
-            self.candidates[n] = candidate
-            n += 1
-        return n
-
     def _next_candidate(self) -> None:
         self.next_candidate += 1
         self.phase = ALIGN
@@ -327,14 +294,12 @@ class BackEnd:
         return {
             "matcher": self.matcher.state(), "counts": asdict(self.counts),
             "loops": asdict(self.loops.counts), "slices": self.slices.copy(),
-            "queue": np.array(self.queued(), np.int64),
+            "queue": np.array(self.queue.queued(), np.int64),
             "candidates": self.candidates[: self.n_candidates].copy(),
             "z": self.z.copy(), "z_info": self.z_info.copy(), "cost": self.cost.copy(),
             "wide": self.wide.state(), "guess": self.guess.copy(),
             "widened": self.widened, "last_closure": self.last_closure,
-            "wide_from": self.wide_from,
-            "failed": self.failed[: self.n_failed].copy(), "failed_node": self.failed_node,
-            "failed_revision": self.failed_revision,
+            "wide_from": self.wide_from, **self.failed.state(),
             "node": self.node, "phase": self.phase, "next_candidate": self.next_candidate,
             "waited": self.waited, "revision": self.revision, "status": self.status,
             **self.closure.memory.state(),
@@ -342,26 +307,21 @@ class BackEnd:
 
     def restore(self, state: dict) -> None:
         queue, cand = state["queue"], state["candidates"]
-        if len(queue) > self.queue.shape[0]:
-            raise ValueError(f"{len(queue)} queued loop searches exceed the queue capacity "
-                             f"{self.queue.shape[0]}")
         if len(cand) > self.candidates.shape[0]:
             raise ValueError(f"{len(cand)} loop candidates exceed max_attempts "
                              f"{self.candidates.shape[0]}")
         n = self.graph.n_nodes
         node = int(state["node"])
-        failed = np.asarray(state["failed"], np.int64)
-        if (any(not 0 <= int(v) < n for v in (*queue, *cand, *failed)) or not -1 <= node < n
-                or len(failed) > self.failed.shape[0]):
+        if any(not 0 <= int(v) < n for v in (*queue, *cand)) or not -1 <= node < n:
             raise ValueError("the loop search refers to nodes that do not exist")
         if (not SELECT <= int(state["phase"]) <= WIDE
                 or not 0 <= int(state["next_candidate"]) <= len(cand)):
             raise ValueError("the loop search is in a state it never takes")
+        self.queue.restore(queue)
+        self.failed.restore(state, n)
         self.matcher.restore(state["matcher"])
         restore_counts(self.counts, state["counts"])
         restore_counts(self.loops.counts, state["loops"])
-        self.head, self.size = 0, len(queue)
-        self.queue[: self.size] = queue
         self.n_candidates = len(cand)
         self.candidates[: self.n_candidates] = cand
         self.z[:], self.cost[:], self.slices[:] = state["z"], state["cost"], state["slices"]
@@ -373,10 +333,6 @@ class BackEnd:
         self._closing = None  # and so does a closure on trial (the graph holds no trial edge)
         self.last_closure = int(state["last_closure"])
         self.wide_from = int(state["wide_from"])
-        self.n_failed = len(failed)
-        self.failed[: self.n_failed] = failed
-        self.failed_node = int(state["failed_node"])
-        self.failed_revision = int(state["failed_revision"])
         self.node = node
         self.phase, self.next_candidate, self.waited, self.revision = (
             int(state[k]) for k in ("phase", "next_candidate", "waited", "revision"))
