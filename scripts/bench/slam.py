@@ -1,4 +1,4 @@
-"""``swarmslam bench slam``: the SLAM on the raw Intel, ACES3, fr-clinic and MIT-CSAIL logs,
+"""``swarmslam bench slam``: the SLAM on the raw Intel, ACES3, fr-clinic, MIT-CSAIL and FR079 logs,
 scored with their Kümmerle relations, per optimizer, with and without odometry, over seeds
 (mean and worst), beside published systems. fr-clinic is scored apart on local relations
 (endpoints less than 300 s apart) and global ones, as its published figures are. Every log's
@@ -25,7 +25,8 @@ from swarmslam.bench.record import save_results
 
 LOGS = {"intel": ("intel.clf.gz", "intel.relations"), "aces": ("aces.clf.gz", "aces.relations"),
         "clinic": ("fr-clinic.clf.gz", "fr-clinic.relations"),
-        "mit": ("mit-csail.clf.gz", "mit-csail.relations")}
+        "mit": ("mit-csail.clf.gz", "mit-csail.relations"),
+        "fr079": ("fr079.clf.gz", "fr079.relations")}
 # Hess et al. 2016 (Table II) and Kümmerle et al. 2009, same metric (shared/datasets/README):
 # (eT, ± m, eR, ± deg) per system; for fr-clinic per part, local and global.
 PUBLISHED = {
@@ -42,9 +43,14 @@ PUBLISHED = {
                "Cartographer, global": (5.2242, 6.6230, 3.341, 4.797),
                "Graph mapping, global": (11.6, 11.9, 6.3, 6.2)},
     "mit": {"Cartographer": (0.0319, 0.0363, 0.369, 0.365)},
+    "fr079": {"Cartographer": (0.0452, 0.0354, 0.538, 0.718),
+              "Graph mapping": (0.056, 0.042, 0.6, 0.6),
+              "RBPF (GMapping, 50 particles)": (0.061, 0.044, None, None),
+              "scan matching only": (0.258, 0.427, None, None)},
 }
 # The figures a run is judged by per log: the whole relation set, or fr-clinic's two parts.
-SCORED = {"intel": ("",), "aces": ("",), "clinic": ("_local", "_global"), "mit": ("",)}
+SCORED = {"intel": ("",), "aces": ("",), "clinic": ("_local", "_global"), "mit": ("",),
+          "fr079": ("",)}
 # The short relations' figures, averaged over seeds (and their worst seed's).
 SHORT = ("eT_short", "eR_short_deg", "eR_short_median_deg", "eR_short_p99_deg",
          "eR_short_max_deg", "eR_short_over_5deg")
@@ -55,7 +61,7 @@ AUDITED = ("eR_short_confirmed_deg", "eR_short_confirmed_p99_deg", "eR_short_ove
 
 def bench_slam(data_dir: Path, optimizers=("abc", "pso", "fa"), logs=tuple(LOGS),
                modes=(True, False), limit=None, out_dir=None, json_path=None, echo=print,
-               config=None, seeds=(0, 1, 2), plots=None):
+               config=None, seeds=(0, 1, 2, 3, 4), plots=None):
     """``config``: the SLAM's configuration (default: the defaults); each run sets its
     optimizer. Every (log, optimizer, input) runs once per seed; the table gives the mean
     over seeds and the worst seed. ``plots``: a folder for each run's relation errors over

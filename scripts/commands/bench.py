@@ -14,7 +14,7 @@ HELP = {
     "bench matcher": ("Scan matching alone, with no initial guess, on the keyframe logs: "
                       "failure rate, error, time per match, per optimizer.",
                       "swarmslam bench matcher --optimizers abc --json bench-results/matcher.json"),
-    "bench slam": ("The SLAM on the raw Intel, ACES3, fr-clinic and MIT-CSAIL logs, scored by "
+    "bench slam": ("The SLAM on the raw Intel, ACES3, fr-clinic, MIT-CSAIL and FR079 logs, scored by "
                    "their relations, mean and worst over seeds, beside published systems.",
                    "swarmslam bench slam --optimizers abc --modes odometry --json "
                    "bench-results/slam.json"),
@@ -32,6 +32,11 @@ HELP = {
     "bench runtime": ("The fixed-rate runtime at 10 Hz on a log: latency, deadline misses, "
                       "memory after warm-up, accuracy; --soak MIN: a long run on simulated "
                       "scans.", "swarmslam bench runtime --json bench-results/runtime.json"),
+    "bench robustness": ("Every given log on seeds 0–9, and perturbed copies of it (thinned, "
+                         "fewer beams, odometry drift, a start cut away) and simulated corridors: "
+                         "median, worst and spread of eT, eR and the global eT; gross runs "
+                         "counted.", "swarmslam bench robustness --json "
+                         "bench-results/robustness.json"),
     "bench bags": ("What reading a ROS bag costs beside the replay it feeds, per format, and "
                    "whether the MCAP bag replays as the CARMEN log.",
                    "swarmslam bench bags --json bench-results/bags.json"),
@@ -57,12 +62,12 @@ def add(sub) -> None:
     m.add_argument("--seed", type=int, default=0)
     bench_outputs(m)
     m.set_defaults(func=_bench_matcher)
-    s = bsub.add_parser("slam", help="SLAM on the raw Intel/ACES3/fr-clinic/MIT-CSAIL logs, scored by "
+    s = bsub.add_parser("slam", help="SLAM on the raw Intel/ACES3/fr-clinic/MIT-CSAIL/FR079 logs, scored by "
                                      "relations over seeds")
     s.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
     s.add_argument("--optimizers", default="abc,pso,fa")
-    s.add_argument("--datasets", default="intel,aces,clinic,mit")
-    s.add_argument("--seeds", default="0,1,2", help="seeds per run (mean and worst reported)")
+    s.add_argument("--datasets", default="intel,aces,clinic,mit,fr079")
+    s.add_argument("--seeds", default="0,1,2,3,4", help="seeds per run (mean and worst reported)")
     s.add_argument("--modes", default="both", choices=["both", "odometry", "scans"])
     s.add_argument("--limit", type=at_least_one, help="only the first N scans of each log")
     s.add_argument("--out", help="keep each run's map, trajectory and graph here")
@@ -123,6 +128,21 @@ def add(sub) -> None:
     bench_outputs(rt)
     config_options(rt, DEFAULT_PRESET)
     rt.set_defaults(func=_bench_runtime)
+    ro = bsub.add_parser("robustness", help="every given log on seeds 0–9 and perturbed: "
+                                             "median, worst and spread; gross runs counted")
+    ro.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
+    ro.add_argument("--datasets", default="intel,aces,clinic,mit,fr079,corridor",
+                    help="logs (and 'corridor': simulated corridor surveys, a floor per seed)")
+    ro.add_argument("--families", default="all",
+                    help="perturbations of the given logs: raw, every-2nd, every-3rd, "
+                         "half-beams, odometry-drift, start-cut (default: all; "
+                         "docs/benchmarks.md)")
+    ro.add_argument("--seeds", default="0-9", help="seeds: 0-9, or a list 0,3,7")
+    ro.add_argument("--jobs", type=at_least_one, help="replays at a time (default: one a core)")
+    ro.add_argument("--keep", metavar="DIR", help="keep each run's map, trajectory and graph here "
+                                                  "(LOG-FAMILY-sSEED), to look at every seed's map")
+    bench_outputs(ro)
+    ro.set_defaults(func=_bench_robustness)
     bg = bsub.add_parser("bags", help="the cost of reading a ROS bag (ROS 1, sqlite3, MCAP) "
                                       "beside the replay it feeds; MCAP vs CARMEN trajectory")
     bg.add_argument("--data", help="datasets folder (default: ../shared/datasets)")
@@ -193,6 +213,34 @@ def _bench_slam(args) -> int:
     seeds = tuple(int(v) for v in args.seeds.split(",") if v.strip())
     bench_slam(find_datasets(args.data), optimizers, logs, modes, args.limit, args.out, args.json,
                config=run_config(args, DEFAULT_PRESET), seeds=seeds, plots=args.plots)
+    return 0
+
+
+def _seeds(text: str) -> tuple[int, ...]:
+    """``0-9`` or ``0,3,7``."""
+    first, dash, last = text.partition("-")
+    if dash:
+        return tuple(range(int(first), int(last) + 1))
+    return tuple(int(v) for v in text.split(",") if v.strip())
+
+
+def _bench_robustness(args) -> int:
+    from swarmslam.bench.robustness import FAMILIES, SIMULATED, bench_robustness
+    from swarmslam.bench.slam import LOGS
+    from swarmslam.datasets import find_datasets
+
+    logs = tuple(d.strip() for d in args.datasets.split(",") if d.strip())
+    for d in logs:
+        if d not in LOGS and d != SIMULATED:
+            raise SystemExit(f"unknown dataset {d!r}; choose from {', '.join(LOGS)}, {SIMULATED}")
+    families = FAMILIES if args.families == "all" else tuple(
+        f.strip() for f in args.families.split(",") if f.strip())
+    for f in families:
+        if f not in FAMILIES:
+            raise SystemExit(f"unknown family {f!r}; choose from {', '.join(FAMILIES)}")
+    data = find_datasets(args.data) if any(d != SIMULATED for d in logs) else None
+    bench_robustness(data, logs, families, _seeds(args.seeds), args.jobs, args.json,
+                     args.plots, args.keep)
     return 0
 
 

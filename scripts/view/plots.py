@@ -171,6 +171,32 @@ def slam_summary(out_dir, summary, published) -> list[Path]:
     return paths
 
 
+# ---------------------------------------------------------------------- bench robustness
+def robustness_figure(out_dir, runs: list[dict], summary: dict) -> Path:
+    """Every run's scored eT and global eT, one column per log and family, a dot a seed (red:
+    a gross run), the median seed's marked."""
+    plt = _pyplot()
+    keys = list(summary)
+    fig, axes = plt.subplots(2, 1, figsize=(max(6.0, 0.7 * len(keys) + 2), 6.4), sharex=True)
+    for ax, key, label in ((axes[0], "eT_scored", "eT (m)"),
+                           (axes[1], "eT_global", "global eT, ≥ 300 s apart (m)")):
+        for x, name in enumerate(keys):
+            rows = [r for r in runs if f"{r['log']}/{r['family']}" == name]
+            gross = {g["seed"] for g in summary[name]["gross"]}
+            for r in rows:
+                if r[key] is not None:
+                    ax.plot(x, r[key], "o", ms=4, color="tab:red" if r["seed"] in gross
+                            else "tab:blue", alpha=0.8)
+            median = summary[name].get(f"{key}_median")
+            if median is not None:
+                ax.plot([x - 0.3, x + 0.3], [median, median], color="black", lw=1)
+        ax.set_yscale("log")
+        ax.set_ylabel(label)
+    axes[1].set_xticks(range(len(keys)), keys, rotation=60, ha="right", fontsize=7)
+    axes[0].set_title("bench robustness: a dot a seed (red: gross), the median's line")
+    return save(fig, Path(out_dir) / "robustness.png")
+
+
 # ---------------------------------------------------------------------- bench matcher
 def matcher_errors(out_dir, dataset: str, errors: dict) -> Path:
     """Distribution of each matcher's translation and rotation errors on one log's pairs
