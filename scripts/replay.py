@@ -221,13 +221,13 @@ def _replay_run(log_path, relations_path, options: RunOptions, odometry, out_dir
                              f"both ends at scans of {log_path} (within 0.1 ms) — the "
                              f"relations of another log?")
     schedule = options.schedule or "lockstep"
+    beams = max(len(r.ranges) for r in lasers)
     config = None
     if options.session is None:  # (a session's configuration is its own)
         config = bag_sweep(lasers, options.config, warn=lambda text: print(
             f"{log_path}: {text}", file=sys.stderr))
         config = replay_config(config, len(lasers), schedule,
-                               node_bound(lasers, config, odometry),
-                               max(len(r.ranges) for r in lasers))
+                               node_bound(lasers, config, odometry), beams)
     runtime = open_runtime(options, config, {"runtime.schedule": schedule}, scans=len(lasers))
     config = runtime.config
     slam = runtime.slam
@@ -235,7 +235,7 @@ def _replay_run(log_path, relations_path, options: RunOptions, odometry, out_dir
     # first tick: the real-time factor is the run's, not the compiler's (after a checkout that
     # changed a source, numba compiles every kernel afresh: docs/runtime.md §8).
     warm_up_seconds = runtime.warm_up()
-    scan = PointScan(max(len(r.ranges) for r in lasers))
+    scan = PointScan(beams)
     latencies = np.zeros(len(lasers))
     progress = Progress(len(lasers), label)
     start_time = time.perf_counter()
