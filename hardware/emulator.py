@@ -87,6 +87,22 @@ class Faults:
             raise ValueError(f"--faults {text!r}: {exc}") from None
 
 
+PTY_FOLDER = "/dev/pts/"  # where a link of an earlier emulator (one killed) points
+
+
+def refuse_to_replace(link: Path) -> None:
+    """Raise FileExistsError unless ``link`` is free, or a link an emulator made (to a
+    pseudo-terminal): a file, a folder or a link to anything else is the user's."""
+    if not (link.exists() or link.is_symlink()):
+        return
+    if link.is_symlink() and os.readlink(link).startswith(PTY_FOLDER):
+        return
+    kind = "a symbolic link to " + os.readlink(link) if link.is_symlink() else \
+        "a folder" if link.is_dir() else "a file"
+    raise FileExistsError(f"--link {link}: is {kind}, which the emulator will not replace; "
+                          f"name a free path")
+
+
 class VirtualRPLidar:
     def __init__(self, source, model: str = "a1", faults: Faults | None = None, seed: int = 0,
                  link: str | os.PathLike | None = None, typical: str | None = None):
@@ -120,6 +136,8 @@ class VirtualRPLidar:
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> str:
+        if self.link is not None:
+            refuse_to_replace(self.link)
         self._open_pty()
         self._stop.clear()
         self._thread = threading.Thread(target=self._serve, name="rplidar-emulator", daemon=True)

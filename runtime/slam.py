@@ -15,6 +15,7 @@ start-up.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict
 
 import numpy as np
@@ -31,6 +32,16 @@ from swarmslam.runtime.pose_graph import PoseGraph
 from swarmslam.runtime.resources import check_memory
 from swarmslam.runtime.matching.scan import PointScan
 from swarmslam.runtime.step_result import StepResult
+
+
+def screen(odometry, stamp: float) -> None:
+    """Raise ValueError unless ``stamp`` and ``odometry`` (x, y, θ, or None) are finite."""
+    if not math.isfinite(stamp):
+        raise ValueError(f"a scan's stamp must be finite, got {stamp}")
+    if odometry is not None and not (math.isfinite(odometry[0]) and math.isfinite(odometry[1])
+                                     and math.isfinite(odometry[2])):
+        raise ValueError(f"odometry must be finite (None for a scan without it), got "
+                         f"{tuple(float(v) for v in odometry)}")
 
 
 class GraphSlam:
@@ -51,7 +62,10 @@ class GraphSlam:
              budget_end: float | None = None) -> StepResult:
         """One scan through Alg. 4: the front end, then the back end's loop search for a new
         node. Without ``budget_end`` the back end does all its pending work now (the lockstep
-        schedule); with it, only the slices that fit before then (``clock`` reads the time)."""
+        schedule); with it, only the slices that fit before then (``clock`` reads the time).
+        A stamp or an odometry reading that is not finite is refused (ValueError), as the
+        runtime's inbox refuses it: nothing non-finite reaches the kernels or the trajectory."""
+        screen(odometry, stamp)
         if self.locator is not None:  # a resumed session, started at an unknown place
             return self._rejoin(scan, odometry, stamp, clock, budget_end)
         start = clock() if clock is not None else 0.0

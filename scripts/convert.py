@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from swarmslam.runtime.realtime.writers import write_bytes_atomic
-from swarmslam.formats.bags import format_of, write_bag
+from swarmslam.formats.bags import format_of, refuse_to_replace, write_bag
 from swarmslam.formats.carmen import flaser_angles, flaser_line, odom_line, robotlaser1_line
 from swarmslam.formats.logs import BagOptions, read_log
 
@@ -68,8 +68,10 @@ def convert(source, output, fmt: str | None = None, bag: BagOptions | None = Non
             warn=None) -> dict:
     """``source`` (CARMEN or a bag) written to ``output`` in ``fmt`` (default: from its name);
     returns what was written."""
-    log = read_log(source, bag, warn)
     fmt = output_format(output, fmt)
+    if fmt != "carmen":  # before the reading, not after it
+        refuse_to_replace(Path(output), fmt)
+    log = read_log(source, bag, warn)
     if fmt == "carmen":
         text = carmen_text(log, warn).encode("ascii")
         out = Path(output)

@@ -21,8 +21,9 @@ from swarmslam.hardware.models import model as get_model
 from swarmslam.runtime.config import SlamConfig, override, preset
 from swarmslam.runtime.realtime.fixed_rate import SlamRuntime
 from swarmslam.runtime.realtime.writers import write_json_atomic
-from swarmslam.formats.bags import BagRecorder
-from swarmslam.outputs import check_writable, clean_stale, output_set, write_results
+from swarmslam.formats.bags import BagError, BagRecorder
+from swarmslam.outputs import (UNUSABLE_REPORT, check_input_kept, check_writable, clean_stale,
+                               output_set, report_beside, write_results)
 from swarmslam.view.run_view import frame_of
 from swarmslam.formats.tum import write_tum
 from swarmslam.runs import RunOptions, open_runtime
@@ -51,6 +52,8 @@ def run_live(port: str, model: str = "a1", mode: str = "typical", out_dir="swarm
     options = options or RunOptions()
     out = Path(out_dir)
     check_writable(out)
+    if options.localize:
+        check_input_kept(out, options.localize, "the session")
     clean_stale(out)
     changes = {} if rate_hz is None else {"runtime.rate_hz": rate_hz}
     sensor = slam_config_for(model).sensor  # the scanner on the port now
@@ -129,10 +132,13 @@ def run_live(port: str, model: str = "a1", mode: str = "typical", out_dir="swarm
         lidar.close()
         if watch is not None:
             watch.close()
-        if recorder is not None:
-            echo(f"wrote {recorder.close()}: {recorder.recorded} scans"
-                 + (f" ({recorder.dropped} dropped: the disk fell behind)"
-                    if recorder.dropped else ""))
+        if recorder is not None:  # a failed bag is said; the run's outputs are saved still
+            try:
+                echo(f"wrote {recorder.close()}: {recorder.recorded} scans"
+                     + (f" ({recorder.dropped} dropped: the disk fell behind)"
+                        if recorder.dropped else ""))
+            except BagError as exc:
+                echo(f"warning: {exc}")
     return save_outputs(runtime, out, lidar.report(), echo)
 
 
@@ -145,12 +151,17 @@ def save_outputs(runtime: SlamRuntime, out: Path, scanner: dict, echo=print) -> 
     report = runtime.report()
     status = runtime.status if report["scans"] else NO_SCANS_STATUS
     summary = {"status": status, "runtime": report, "scanner": scanner}
+    if not report["scans"]:  # an empty map must not replace what the folder held
+        report_beside(out, summary)
+        echo(f"nothing written to {out}/ but {UNUSABLE_REPORT} (what it held is as it was)")
+        echo(f"status: {status}")
+        return summary
     with output_set(out) as stage:
         if runtime.localizing:  # the saved map is unchanged: only where the robot went
             write_tum(stage / "trajectory.tum", *runtime.trajectory())
             write_json_atomic(stage / "summary.json", summary)
             wrote = "trajectory.tum summary.json"
-        else:  # the whole set, even of nothing (an empty map): never an earlier run's beside
+        else:  # the whole set: never an earlier run's files beside it
             write_results(runtime.slam, stage)
             runtime.save(stage / "session.npz")
             write_json_atomic(stage / "summary.json", summary)

@@ -19,6 +19,7 @@ import stat
 import time
 from pathlib import Path
 
+from swarmslam.runtime.realtime.writers import write_json_atomic, write_text_atomic
 from swarmslam.runtime.slam import GraphSlam
 from swarmslam.formats.g2o import write_g2o
 from swarmslam.formats.map_io import write_map
@@ -197,3 +198,31 @@ def check_writable(out_dir) -> None:
     needs = existing if existing != out or _in_place(out) else out.parent
     if not os.access(needs, os.W_OK | os.X_OK):
         raise ValueError(f"--out {given}: {needs} is not writable")
+
+
+UNUSABLE_REPORT = "unusable-run.json"  # a run that wrote no set: its report, beside the set
+
+
+def report_beside(out_dir, report: dict) -> Path:
+    """A run that left no output set (nothing usable came in): its ``report`` written into
+    ``out_dir`` beside the set there, which stays as it was; named in the set's manifest, so
+    that the next set replaces it with the rest."""
+    out = _target(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = write_json_atomic(out / UNUSABLE_REPORT, report)
+    names = _previous_set(out)
+    if UNUSABLE_REPORT not in names:
+        write_text_atomic(out / MANIFEST, "\n".join(sorted(names | {UNUSABLE_REPORT})) + "\n")
+    return path
+
+
+def check_input_kept(out_dir, path, what: str) -> None:
+    """Refuse, before any long work, a run whose output set would drop its own input ``path``
+    (``what`` it is): a file an earlier set wrote into ``out_dir`` that this run's set does
+    not write again, as a localized run's session and map."""
+    source = Path(path).resolve()
+    out = _target(out_dir)
+    if source.parent == out and source.name in _previous_set(out):
+        raise ValueError(f"--out {out_dir}: {what} {path} is part of the output set there, "
+                         f"which this run's outputs replace (its map and session would be "
+                         f"gone); give another --out")

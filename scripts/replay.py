@@ -22,7 +22,8 @@ from swarmslam.runtime.matching.scan import PointScan, ranges_to_points
 from swarmslam.runtime.realtime.writers import write_json_atomic
 from swarmslam.formats.logs import BagOptions, read_log
 from swarmslam.evaluation.metrics import kummerle, match_relations
-from swarmslam.outputs import check_writable, output_set, write_results
+from swarmslam.outputs import (check_input_kept, check_writable, output_set, report_beside,
+                               write_results)
 from swarmslam.evaluation.odometry_check import odometry_seen
 from swarmslam.progress import Progress
 from swarmslam.formats.relations import read_relations
@@ -145,6 +146,13 @@ def input_report(log, runtime: SlamRuntime) -> dict:
 
 
 MOSTLY_UNUSABLE = 0.5  # a run whose records were more than this share unusable is not ok
+NO_USABLE_SCAN = "no usable scan"  # a run's status starting so: it wrote nothing
+
+
+def writes_outputs(metrics: dict) -> bool:
+    """Whether a run leaves an output set: not when no scan was usable (an empty map must not
+    replace what the output folder held)."""
+    return not metrics["status"].startswith(NO_USABLE_SCAN)
 
 
 def run_status(status: str, log, runtime: SlamRuntime) -> str:
@@ -153,7 +161,7 @@ def run_status(status: str, log, runtime: SlamRuntime) -> str:
     report = input_report(log, runtime)
     said = []
     if report["scans_refused"] == len(log.lasers):
-        said.append("no usable scan: every scan was refused")
+        said.append(f"{NO_USABLE_SCAN}: every scan was refused")
     elif report["unusable_share"] > MOSTLY_UNUSABLE:
         said.append(f"mostly unusable input: {report['unusable_share']:.0%} of the records "
                     f"skipped or refused")
@@ -205,6 +213,8 @@ def _replay_run(log_path, relations_path, options: RunOptions, odometry, out_dir
                 bag, label, watch, before_scan):
     if out_dir is not None:
         check_writable(out_dir)  # before the run, not after it
+        if options.localize:
+            check_input_kept(out_dir, options.localize, "the session")
     log = read_log(log_path, bag, warn=lambda text: print(text, file=sys.stderr))
     if log.skipped:
         print(f"{log_path}: skipped {sum(log.skipped.values())} records ("
@@ -283,7 +293,9 @@ def _replay_run(log_path, relations_path, options: RunOptions, odometry, out_dir
     }
     if relations is not None:
         metrics.update(scored(stamps, poses, relations))
-    if out_dir is not None:
+    if out_dir is not None and not writes_outputs(metrics):
+        report_beside(out_dir, metrics)
+    elif out_dir is not None:
         with output_set(out_dir) as stage:  # swapped in whole (scripts/outputs.py)
             write_results(slam, stage)
             runtime.save(stage / "session.npz")  # map once, localize or resume later
@@ -303,7 +315,9 @@ def localization_results(runtime: SlamRuntime, log, log_path, session_path, lase
                "saved_map_sha256": runtime.slam.saved.digest()}
     if relations is not None:
         metrics.update(scored(stamps, poses, relations))
-    if out_dir is not None:
+    if out_dir is not None and not writes_outputs(metrics):
+        report_beside(out_dir, metrics)
+    elif out_dir is not None:
         with output_set(out_dir) as stage:
             write_tum(stage / "trajectory.tum", stamps, poses)
             write_json_atomic(stage / "localization.json", metrics)

@@ -69,7 +69,7 @@ def log_text(survey: Survey, fmt: str = "auto") -> str:
     a = survey.angles
     res = float(a[1] - a[0])
     rate = 1 / np.median(np.diff(survey.stamps))
-    lines = [f"# swarmslam simlog: {survey.site.world.name}, {survey.lidar.beams} beams over "
+    lines = [f"{HEADER}: {survey.site.world.name}, {survey.lidar.beams} beams over "
              f"{math.degrees(survey.lidar.fov):g} deg, {rate:g} Hz"]
     for t, odo, r in zip(survey.stamps, survey.odometry, survey.ranges):
         if survey.odometry_stream:
@@ -79,6 +79,31 @@ def log_text(survey: Survey, fmt: str = "auto") -> str:
         else:
             lines.append(robotlaser1_line(r, float(a[0]), res, survey.lidar.max_range, odo, t))
     return "\n".join(lines) + "\n"
+
+
+HEADER = "# swarmslam simlog"  # a simlog log's first line begins so
+
+
+def made_by_simlog(log: Path) -> bool:
+    """Whether ``log`` (plain or gzip) is a log this command wrote (its first line)."""
+    try:
+        with (gzip.open(log, "rt", encoding="ascii", errors="replace") if log.name.endswith(".gz")
+              else open(log, encoding="ascii", errors="replace")) as f:
+            return f.readline().startswith(HEADER)
+    except (OSError, EOFError):
+        return False
+
+
+def refuse_to_replace(out: Path, base: Path) -> None:
+    """Raise FileExistsError when the log ``out`` or a file beside it that a simlog writes
+    (``base``.relations, .truth.tum, .world) exists and is not of an earlier simlog of that
+    name: a real log's relations beside (``simlog intel.clf``) are the user's."""
+    ours = any(made_by_simlog(Path(f"{base}{suffix}")) for suffix in (".clf", ".clf.gz"))
+    for path in (out, *(Path(f"{base}.{suffix}") for suffix in ("relations", "truth.tum",
+                                                                   "world"))):
+        if path.exists() and not ours:
+            raise FileExistsError(f"{path}: exists and is not of an earlier simlog; a "
+                                  f"simlog there would replace it (name another log)")
 
 
 def write_simlog(out, kind: str = "building", seed: int = 0, lidar: str = "sick-0.5",
@@ -94,6 +119,7 @@ def write_simlog(out, kind: str = "building", seed: int = 0, lidar: str = "sick-
     stem = out.name[: -len(".gz")] if out.name.endswith(".gz") else out.name
     stem = stem[: -len(".clf")] if stem.endswith(".clf") else stem
     base = out.parent / stem
+    refuse_to_replace(out, base)  # before the survey, not after it
     survey = run_survey(site(kind, seed), lidar, rate_hz, odometry, seed, seconds=seconds,
                         effects=effects, turning=turning, max_turn=max_turn)
     text = log_text(survey, fmt).encode("ascii")

@@ -91,6 +91,9 @@ MIXED_EDGE = 0.3  # m: a depth step across the footprint this large is an edge
 SWEEP_GROUPS = 16  # beams cast together from one pose of a moving sweep, at least ...
 SWEEP_GROUP_SECONDS = 0.002  # ... and as many more as keep a group within this long
 PERSON_RADIUS = 0.25  # m
+# Scans per second a survey takes: real 2-D scanners turn at 5–75 Hz; below, a route is a few
+# scans; above, the log's size (every scan kept in memory) grows without use.
+RATE_HZ = (0.1, 1000.0)
 PERSON_SPEED = 1.0  # m/s
 PERSON_OFFSET = 0.5  # m at most beside the route's centre line
 # A robot as real logs show it (MIT-CSAIL): odometry read about once a second into a log of
@@ -298,8 +301,9 @@ def run_survey(where: Site, lidar: str | LidarConfig = "sick-0.5", rate_hz: floa
     turning = TURNING[turning] if isinstance(turning, str) else turning
     max_turn = turning.max_rate if max_turn is None else max_turn
     effects = EFFECTS[effects] if isinstance(effects, str) else effects
-    if not rate_hz > 0:
-        raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+    if not RATE_HZ[0] <= rate_hz <= RATE_HZ[1]:
+        raise ValueError(f"rate_hz must be within {RATE_HZ[0]:g}–{RATE_HZ[1]:g} scans per "
+                         f"second, got {rate_hz}")
     if not max_turn > 0:
         raise ValueError(f"max_turn must be > 0, got {max_turn}")
     rng = np.random.default_rng(seed)

@@ -15,7 +15,7 @@ from scipy.spatial import cKDTree
 from swarmslam.runtime.config import SlamConfig
 from swarmslam.runtime.pose import between, compose
 from swarmslam.runtime.realtime.warm_up import loop_path, room_world, scan_at
-from swarmslam.formats.bags import BagError, BagWriter, read_bag, write_bag
+from swarmslam.formats.bags import BagError, BagRecorder, BagWriter, read_bag, write_bag
 from swarmslam.formats.carmen import flaser_angles, read_carmen
 from swarmslam.cli import main
 from swarmslam.replay import bag_sweep, replay_run
@@ -260,3 +260,72 @@ def test_a_bags_unusable_beam_timing_is_named_and_not_used():
     config = bag_sweep(scans(1e-4), SlamConfig(), said.append)
     assert config.sensor.sweep_seconds == pytest.approx(0.036)
     assert config.sensor.sweep_stamp == 0.0
+
+
+@pytest.mark.parametrize("offset", [(1e300, 0.0, 0.0), (float("nan"), 0.0, 0.0), (101.0, 0.0, 0.0)])
+def test_a_mount_not_finite_or_beyond_a_robots_reach_is_refused_by_name(tmp_path, offset):
+    """A laser mounted 1e300 m away used to reach a kernel unchecked (a segfault)."""
+    path = tmp_path / "far.mcap"
+    writer = BagWriter(path)
+    writer.mount(0.0, offset)
+    writer.scan(0.0, flaser_angles(181), np.full(181, 3.0), 50.0)
+    writer.close()
+    with pytest.raises(BagError, match="tf_static"):
+        read_bag(path)
+
+
+def test_a_mount_within_reach_is_read_as_written(tmp_path):
+    path = tmp_path / "near.mcap"
+    writer = BagWriter(path)
+    writer.mount(0.0, (99.0, -0.5, 0.25))
+    writer.scan(0.0, flaser_angles(181), np.full(181, 3.0), 50.0)
+    writer.close()
+    (record,) = read_bag(path).lasers
+    assert np.allclose(record.laser_offset, (99.0, -0.5, 0.25))
+
+
+def test_convert_never_replaces_a_folder_that_is_not_a_bag(carmen_log, tmp_path, monkeypatch,
+                                                           capsys):
+    mine = tmp_path / "mydata"
+    mine.mkdir()
+    (mine / "thesis.txt").write_text("three years of work")
+    assert main(["convert", str(carmen_log), str(mine)]) == 2
+    assert "not a ROS 2 bag" in capsys.readouterr().err
+    assert sorted(p.name for p in mine.iterdir()) == ["thesis.txt"]
+    assert main(["convert", str(carmen_log), str(mine), "--format", "mcap"]) == 2
+    monkeypatch.chdir(mine)
+    assert main(["convert", str(carmen_log), "."]) == 2
+    assert "working folder" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mydata"]  # no .writing left
+    assert sorted(p.name for p in mine.iterdir()) == ["thesis.txt"]
+
+
+def test_convert_replaces_a_bag_folder_it_wrote_before(carmen_log, tmp_path):
+    bag = tmp_path / "run-db"
+    assert main(["convert", str(carmen_log), str(bag)]) == 0
+    (bag / "metadata.yaml").read_text()
+    assert main(["convert", str(carmen_log), str(bag)]) == 0
+    assert len(read_bag(bag).lasers) == 40
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_the_recorder_writes_every_format_from_its_own_thread(tmp_path, fmt):
+    """A sqlite3 bag's connection belongs to its thread: the recorder's writer is made, used
+    and closed on the recorder's (ROS 2 bag folders used to fail every time)."""
+    recorder = BagRecorder(tmp_path / FORMATS[fmt], 360, 10.0)
+    angles = np.linspace(-math.pi, math.pi, 400, endpoint=False)
+    for k in range(5):
+        recorder.put(angles, np.full(400, 2.0 + 0.1 * k), 0.1 * k)
+    path = recorder.close()
+    lasers = read_bag(path).lasers
+    assert len(lasers) == 5 and recorder.recorded == 5
+    assert np.nanmedian(lasers[4].ranges) == pytest.approx(2.4, abs=1e-3)
+
+
+def test_the_recorder_refuses_a_folder_that_is_not_a_bag_before_the_run(tmp_path):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine")
+    with pytest.raises(BagError, match="not a ROS 2 bag"):
+        BagRecorder(mine, 360, 10.0)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine"]

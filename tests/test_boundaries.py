@@ -25,6 +25,7 @@ from swarmslam.runtime.realtime.warm_up import loop_path, room_world, scan_at
 from swarmslam.formats.carmen import flaser_angles, read_carmen
 from swarmslam.cli import main
 from swarmslam.formats.tum import read_tum
+from swarmslam.outputs import MANIFEST
 
 from source_layout import copy_installed_layout
 from test_hostile_inputs import edit, log_lines, strict_json
@@ -99,16 +100,45 @@ def test_a_robotlaser1_laser_pose_that_is_not_finite_skips_its_record(tmp_path, 
 
 # ---------------------------------------------------------------- logs with nothing usable
 @pytest.mark.parametrize("ranges", ["inf", "81.83"])
-def test_a_log_whose_scans_are_all_empty_says_so_and_keeps_its_report(tmp_path, capsys,
-                                                                       ranges):
-    lines = [edit(line, ranges=ranges) for line in log_lines(12)]
+def test_a_log_whose_scans_are_all_empty_says_so_and_keeps_the_set_there(tmp_path, capsys,
+                                                                          ranges):
+    """A good run's outputs, then a run with nothing usable into the same folder: exit 1, and
+    the good set is as it was (an empty map used to replace it)."""
     out = tmp_path / "out"
-    assert main(["replay", str(write_log(tmp_path / "e.clf", lines)), "--out", str(out)]) == 1
-    m = strict_json(out / "metrics.json")
-    assert m["status"].startswith("no usable scan") and m["scans_refused"] == 12
-    assert (out / "map.pgm").exists() and (out / "trajectory.tum").exists()
-    assert "no usable scan" in capsys.readouterr().out
+    assert main(["replay", str(write_log(tmp_path / "g.clf", log_lines(12))), "--out",
+                 str(out)]) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    capsys.readouterr()
+    lines = [edit(line, ranges=ranges) for line in log_lines(12)]
+    log = write_log(tmp_path / "e.clf", lines)
+    assert main(["replay", str(log), "--out", str(out)]) == 1
+    said = capsys.readouterr().out
+    assert "no usable scan" in said and "nothing written to" in said
+    after = {p.name: p.read_bytes() for p in out.iterdir()}
+    report = strict_json(out / "unusable-run.json")  # its report beside the set
+    assert report["status"].startswith("no usable scan") and report["scans_refused"] == 12
+    assert {k: v for k, v in after.items() if k not in ("unusable-run.json", MANIFEST)} == {
+        k: v for k, v in before.items() if k != MANIFEST}
+    assert main(["replay", str(write_log(tmp_path / "g.clf", log_lines(12))), "--out",
+                 str(out)]) == 0
+    assert not (out / "unusable-run.json").exists()  # the next set replaces it with the rest
     assert SlamRuntime(SlamConfig()).global_map().logodds.size > 0  # before any scan
+
+
+def test_a_localized_run_refuses_an_out_that_holds_its_session(tmp_path, capsys):
+    """Its output set would replace the mapping run's there: the session and its map gone."""
+    log = write_log(tmp_path / "g.clf", log_lines(30))
+    out = tmp_path / "run"
+    assert main(["replay", str(log), "--out", str(out)]) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert main(["replay", str(log), "--start", "10", "--localize", str(out / "session.npz"),
+                 "--out", str(out)]) == 2
+    assert "is part of the output set there" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    elsewhere = tmp_path / "localized"
+    assert main(["replay", str(log), "--start", "10", "--localize", str(out / "session.npz"),
+                 "--out", str(elsewhere)]) == 0
+    assert (elsewhere / "localization.json").exists()
 
 
 def test_a_robotlaser1_max_range_of_zero_is_refused_by_name(tmp_path, capsys):
@@ -300,12 +330,13 @@ def test_a_rerun_leaves_no_file_of_the_previous_set(tmp_path):
     out = tmp_path / "out"
     assert main(["replay", str(log), "--out", str(out)]) == 0
     (out / "notes.txt").write_text("mine")
-    empty = write_log(tmp_path / "empty.clf", [edit(line, ranges="inf")
-                                               for line in log_lines(4)])
-    assert main(["replay", str(empty), "--out", str(out)]) == 1
+    (out / "session.npz").unlink()  # a set's file gone meanwhile: the next set writes its own
+    shorter = write_log(tmp_path / "short.clf", log_lines(6))
+    assert main(["replay", str(shorter), "--out", str(out)]) == 0
     m = strict_json(out / "metrics.json")
-    assert m["scans"] == 4 and (out / "notes.txt").read_text() == "mine"
-    assert len(read_tum(out / "trajectory.tum")[0]) == 0  # this run's, not the last one's
+    assert m["scans"] == 6 and (out / "notes.txt").read_text() == "mine"
+    assert len(read_tum(out / "trajectory.tum")[0]) == 6  # this run's, not the last one's
+    assert (out / "session.npz").exists()
 
 
 # ---------------------------------------------------------------- configuration
@@ -361,7 +392,7 @@ def test_the_environment_refuses_a_start_inside_a_wall_and_a_speed_that_tunnels(
 # ---------------------------------------------------------------- live runs
 def test_a_live_run_that_receives_nothing_says_so(tmp_path):
     """The emulator serves an S2; the run asks for an A1: warned, 'no scans' and exit 1, and
-    the output folder holds a whole (empty) set, never an earlier run's files."""
+    the output folder holds what it held (an empty set must not replace yesterday's map)."""
     emu = subprocess.Popen([sys.executable, "-m", "swarmslam.cli", "emulate", "--model", "s2",
                             "--link", str(tmp_path / "lidar")], stdout=subprocess.PIPE,
                            text=True)
@@ -379,11 +410,11 @@ def test_a_live_run_that_receives_nothing_says_so(tmp_path):
     assert live.returncode == 1, live.stdout + live.stderr
     assert "warning: the scanner reports itself an S2, not the A1" in live.stdout
     assert "no scans for" in live.stdout and "status: no scans received" in live.stdout
-    summary = strict_json(out / "summary.json")
+    assert "nothing written to" in live.stdout
+    assert (out / "map.pgm").read_text() == "an earlier run's map"
+    summary = strict_json(out / "unusable-run.json")
     assert summary["status"].startswith("no scans received")
-    assert (out / "map.pgm").read_bytes()[:2] == b"P5"  # this run's (empty) map
-    for name in ("map.yaml", "trajectory.tum", "graph.g2o", "session.npz"):
-        assert (out / name).exists()
+    assert sorted(p.name for p in out.iterdir()) == [MANIFEST, "map.pgm", "unusable-run.json"]
 
 
 # ---------------------------------------------------------------- an unwritable home

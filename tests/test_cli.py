@@ -129,7 +129,9 @@ def test_simlog_then_replay_scores_against_the_simulators_truth(tmp_path, capsys
     assert m["eT"] < 0.05 and m["loops_accepted"] > 0
     assert "eT_local" in m and m["relations_local"] + m.get("relations_global", 0) == m[
         "relations_used"]
-    assert main(["simlog", str(tmp_path / "x.clf"), "--rate", "0"]) == 2
+    for rate in ("0", "1e-9", "inf", "nan", "1e9"):  # none ends, or none is a scanner's
+        assert main(["simlog", str(tmp_path / "x.clf"), "--rate", rate]) == 2
+    assert not (tmp_path / "x.clf").exists()
     # map once, localize later (no prior), and extend the map from an unknown place
     session = out / "session.npz"
     saved = session.read_bytes()
@@ -147,7 +149,7 @@ def test_simlog_then_replay_scores_against_the_simulators_truth(tmp_path, capsys
     assert more["nodes"] > m["nodes"] and more["status"] == "ok"
     assert main(["replay", str(log), "--localize", str(session), "--preset",
                  "sick-lms200"]) == 2
-    assert "--rate must be > 0" in capsys.readouterr().err
+    assert "--rate must be within 0.1–1000 scans per second, got 0" in capsys.readouterr().err
     # --config may change a saved session's search (no pose scores 1: nothing is found), not
     # how its map is made
     mine = tmp_path / "search.toml"
@@ -191,3 +193,18 @@ def test_a_count_below_one_is_refused_before_any_work(tmp_path, capsys):
         err = capsys.readouterr().err
         assert "--limit" in err and ("at least 1" in err or "whole number" in err), err
     assert not (tmp_path / "out").exists()
+
+
+def test_simlog_never_replaces_a_real_logs_files_beside_it(tmp_path, capsys):
+    (tmp_path / "intel.relations").write_text("the published relations")
+    (tmp_path / "mine.clf").write_text("ODOM 0 0 0 0 0 0 0 host 0\n")
+    for name in ("intel.clf", "mine.clf"):
+        assert main(["simlog", str(tmp_path / name), "--site", "hall", "--scanner",
+                     "rplidar-a1", "--rate", "4", "--seconds", "5"]) == 2
+        assert "is not of an earlier simlog" in capsys.readouterr().err
+    assert (tmp_path / "intel.relations").read_text() == "the published relations"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["intel.relations", "mine.clf"]
+    again = tmp_path / "sim.clf"  # an earlier simlog's set is its own to replace
+    for _ in range(2):
+        assert main(["simlog", str(again), "--site", "hall", "--scanner", "rplidar-a1",
+                     "--rate", "4", "--seconds", "5"]) == 0

@@ -1,6 +1,7 @@
 """The driver against the emulator over a real pseudo-terminal: requests, standard / express /
 dense scans decoded to the emulator's ranges within quantisation, and faults survived."""
 
+import os
 import threading
 import time
 
@@ -286,3 +287,27 @@ def test_the_link_switches_baud_where_the_model_allows(emulator_factory):
     with RPLidar(emu.path, "a1") as lidar:
         with pytest.raises(ValueError, match="the A1 runs at 115200 bps"):
             lidar.negotiate_baud(256000)
+
+
+@pytest.mark.parametrize("kind", ["file", "folder", "other link"])
+def test_the_link_never_replaces_what_the_user_has(tmp_path, kind):
+    link = tmp_path / "rplidar"
+    if kind == "file":
+        link.write_text("my notes")
+    elif kind == "folder":
+        link.mkdir()
+    else:
+        link.symlink_to(tmp_path / "elsewhere")
+    before = sorted(p.name for p in tmp_path.iterdir())
+    with pytest.raises(FileExistsError, match="will not replace"):
+        VirtualRPLidar(FunctionSource(room), "a1", seed=1, link=link).start()
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # no .new left either
+    if kind == "file":
+        assert link.read_text() == "my notes"
+
+
+def test_the_link_a_killed_emulator_left_is_taken_over(emulator_factory, tmp_path):
+    link = tmp_path / "rplidar"
+    link.symlink_to("/dev/pts/999")  # its pseudo-terminal gone with it
+    emu = emulator_factory("a1", link=link)
+    assert os.readlink(link) == emu.path

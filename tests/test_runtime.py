@@ -647,6 +647,24 @@ def test_run_ticks_at_its_rate_and_stops_on_request():
     assert np.median(gaps) == pytest.approx(0.02, abs=0.008)
 
 
+def test_autosave_waits_for_the_first_scan_then_saves(tmp_path):
+    """A silent scanner (the wrong model, a dead port) must not replace the session file
+    already there with an empty map; once scans come, the session is saved as it grows."""
+    angles, records = recorded_drive(5)
+    path = tmp_path / "session.npz"
+    path.write_bytes(b"yesterday's session")
+    runtime = SlamRuntime(with_runtime(QUICK, rate_hz=50, autosave_seconds=0.02))
+    runtime.run(threading.Event(), max_ticks=15, autosave=path)
+    runtime.autosave.wait()
+    assert path.read_bytes() == b"yesterday's session" and runtime.autosave.saves == 0
+    for k, (_, odometry, ranges) in enumerate(records):
+        runtime.inbox.put_ranges(angles=angles, ranges=ranges, stamp=float(k), odometry=odometry)
+        runtime.run(threading.Event(), max_ticks=3, autosave=path)
+    runtime.autosave.wait()
+    assert runtime.autosave.saves >= 1 and not runtime.autosave.error
+    assert isinstance(read_session(path), dict)  # a whole session, verified
+
+
 def test_a_robots_loop_keeps_what_lived_before_it_out_of_the_collector_until_it_ends():
     """While a committing runtime's loop runs, the objects alive when it began are frozen
     (no full collection walks them); when it ends they are handed back. A simulator's

@@ -52,6 +52,25 @@ def test_runs_on_scans_alone_as_in_the_paper():
     assert err.max() < 0.15
 
 
+@pytest.mark.parametrize("stamp, odometry", [(float("nan"), None), (float("inf"), None),
+                                              (2.0, (0.0, float("nan"), 0.0)),
+                                              (2.0, (float("-inf"), 0.0, 0.0))])
+def test_a_step_refuses_what_is_not_finite_and_the_run_goes_on(stamp, odometry):
+    slam = GraphSlam(SlamConfig(), seed=0)
+    world = room_world(0, size=(12.0, 9.0), boxes=14, walls=0, keep_clear=loop_path(80))
+    scan = PointScan(len(ANGLES))
+    path = loop_path(80)[:4]
+    for k, pose in enumerate(path):
+        scan.set_ranges(scan_at(world, pose, ANGLES, 12.0, 0.01), ANGLES, 0.05, 12.0)
+        if k == 2:
+            with pytest.raises(ValueError, match="stamp|odometry"):
+                slam.step(scan, odometry, stamp)
+        else:
+            slam.step(scan, between(pose, path[0]), float(k))
+    stamps, poses = slam.trajectory()
+    assert list(stamps) == [0.0, 1.0, 3.0] and np.all(np.isfinite(poses))
+
+
 def test_capacity_reached_keeps_localising():
     slam, _, _ = run(steps=40, config=override(SlamConfig(), {"capacity.max_nodes": 5, "capacity.max_edges": 8}))
     assert slam.graph.n_nodes == 5 and "capacity reached" in slam.status

@@ -303,8 +303,10 @@ class SlamRuntime:
                 break
             result = self.tick(deadline=next_start + period)
             done += 1
-            if saver is not None:
-                saver.maybe(self.state)  # between ticks, in the time left of this period
+            # between ticks, in the time left of this period; not before the first scan (a
+            # silent scanner's empty map must not replace the session file already there)
+            if saver is not None and self.stats.scans:
+                saver.maybe(self.state)
             if on_tick is not None:
                 on_tick(self, result)
             next_start += period

@@ -47,7 +47,8 @@ def add(sub) -> None:
 
 
 def _replay(args) -> int:
-    from swarmslam.replay import replay
+    from swarmslam.outputs import UNUSABLE_REPORT
+    from swarmslam.replay import replay, writes_outputs
 
     options = run_options(args, DEFAULT_PRESET, optimizer=args.optimizer, seed=args.seed)
     m = replay(args.log, args.relations, options, odometry=not args.no_odometry, out_dir=args.out,
@@ -74,13 +75,12 @@ def _replay(args) -> int:
               + " (counted in the report)")
     if skipped_text(m["runtime"]):
         print(skipped_text(m["runtime"]) + " (counted in the report)")
-    if args.localize:
-        if args.out:
-            print(f"wrote {args.out}/trajectory.tum, localization.json (the session is unchanged)")
-        if m["status"] != "ok":
-            print(f"status: {m['status']}")
-        return 1 if m["status"].startswith(UNUSABLE) else 0
-    if args.out:
+    if args.out and not writes_outputs(m):
+        print(f"nothing written to {args.out}/ but {UNUSABLE_REPORT}: no scan was usable (what "
+              f"it held is as it was)")
+    elif args.out and args.localize:
+        print(f"wrote {args.out}/trajectory.tum, localization.json (the session is unchanged)")
+    elif args.out:
         print(f"wrote {args.out}/map.pgm, map.yaml, map.png, trajectory.tum, graph.g2o, metrics.json")
     if m["status"] != "ok":
         print(f"status: {m['status']}")

@@ -46,12 +46,13 @@ def _simlog(args) -> int:
     from dataclasses import replace
 
     from swarmslam.simlog import write_simlog
-    from swarmslam_sim.survey import EFFECT_HELP, EFFECTS
+    from swarmslam_sim.survey import EFFECT_HELP, EFFECTS, RATE_HZ
 
     if args.seconds is not None and not args.seconds > 0:
         raise ValueError(f"--seconds must be > 0, got {args.seconds}")
-    if not args.rate > 0:
-        raise ValueError(f"--rate must be > 0, got {args.rate}")
+    if not RATE_HZ[0] <= args.rate <= RATE_HZ[1]:
+        raise ValueError(f"--rate must be within {RATE_HZ[0]:g}–{RATE_HZ[1]:g} scans per "
+                         f"second, got {args.rate}")
     given = {name: getattr(args, name) for name in EFFECT_HELP if getattr(args, name) is not None}
     if "sweep_seconds" in given:  # a sweep named is the sweep, a spinning scanner's too
         given["sweep_turn"] = False

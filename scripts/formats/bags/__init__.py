@@ -14,7 +14,7 @@ recorded from the driver's thread) and :mod:`.common` (types, exact numbers, the
 from swarmslam.formats.bags.common import FORMATS, BagError, format_of, is_bag
 from swarmslam.formats.bags.reader import read_bag
 from swarmslam.formats.bags.recorder import BagRecorder, bin_ranges
-from swarmslam.formats.bags.writer import BagWriter, write_bag
+from swarmslam.formats.bags.writer import BagWriter, refuse_to_replace, write_bag
 
 __all__ = ["FORMATS", "BagError", "BagRecorder", "BagWriter", "bin_ranges", "format_of",
-           "is_bag", "read_bag", "write_bag"]
+           "is_bag", "read_bag", "refuse_to_replace", "write_bag"]

@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from swarmslam.formats.carmen import MAX_LASER_OFFSET
+
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
 ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
 TF_TYPE = "tf2_msgs/msg/TFMessage"
@@ -126,6 +128,8 @@ def rotation_matrix(q) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------- the mount
+# A quaternion's norm may differ from 1 by this (rounding); beyond, it is not a rotation.
+UNIT_QUATERNION = 1e-3
 @dataclass
 class Mount:
     """The laser on the robot: its pose in the base frame, and whether it is mounted upside
@@ -146,11 +150,19 @@ def mount_of(transforms: dict, base: str, laser: str) -> Mount | None:
         frame = transforms[frame][0]
     rotation, translation = np.eye(3), np.zeros(3)
     for _, t, q in chain:  # from the laser up: each parent's view of the frame below
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(q))
+                and abs(math.sqrt(sum(float(v) ** 2 for v in q)) - 1.0) <= UNIT_QUATERNION):
+            raise BagError(f"the laser {laser!r}'s mount in tf_static is not finite or not a "
+                           f"rotation: translation {tuple(t)}, rotation {tuple(q)}")
         r = rotation_matrix(q)
         rotation, translation = r @ rotation, r @ translation + np.asarray(t, float)
     if abs(abs(rotation[2, 2]) - 1.0) > 1e-3:
         raise BagError(f"the laser {laser!r} is tilted out of the plane in tf_static: not a "
                        f"2-D scanner")
+    if np.any(np.abs(translation[:2]) > MAX_LASER_OFFSET):
+        raise BagError(f"the laser {laser!r} is mounted {np.hypot(*translation[:2]):.3g} m from "
+                       f"{base!r} in tf_static, beyond the {MAX_LASER_OFFSET:g} m a robot's "
+                       f"laser can be")
     mirrored = bool(rotation[2, 2] < 0)  # z down: the beams' angles run the other way
     if len(chain) == 1 and not mirrored:  # the heading as written, exactly
         yaw = yaw_of(chain[0][2])

@@ -83,6 +83,25 @@ class _Messages:
         return self.t[TF_TYPE](transforms=[stamped])
 
 
+def refuse_to_replace(path: Path, fmt: str) -> None:
+    """Raise :class:`BagError` when writing a bag at ``path`` would replace what is not a bag:
+    the working folder (or one holding it), a folder where a file bag goes, or a folder that
+    is not a ROS 2 bag (a bag written before, its ``metadata.yaml`` beside its data, is
+    replaced whole; any other folder is the user's)."""
+    where = path.resolve()
+    cwd = Path.cwd().resolve()
+    if where == cwd or where in cwd.parents:
+        raise BagError(f"{path}: the working folder (or one holding it) cannot become a bag; "
+                       f"name the bag, e.g. {Path(path) / 'out.mcap'}")
+    if not path.is_dir():
+        return
+    if fmt != "sqlite3":
+        raise BagError(f"{path}: exists and is a folder; a {fmt} bag is one file")
+    if not (path / "metadata.yaml").is_file():
+        raise BagError(f"{path}: exists and is not a ROS 2 bag (no metadata.yaml): its files "
+                       f"would be replaced; name a new folder, or a file.mcap / file.bag")
+
+
 class BagWriter:
     """A bag of scans, odometry and the laser's mount, written to a temporary name beside
     ``path`` and moved there whole on :meth:`close` (an interrupted write leaves no bag)."""
@@ -92,6 +111,7 @@ class BagWriter:
         rb = rosbags()
         self.path = Path(path)
         self.fmt = format_of(self.path, fmt)
+        refuse_to_replace(self.path, self.fmt)
         self.frames = (laser_frame, base_frame, odom_frame)
         self.m = _Messages(self.fmt)
         # written in a folder of its own beside the bag, under the bag's own name (a ROS 2
