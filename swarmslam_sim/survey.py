@@ -91,11 +91,11 @@ MIXED_EDGE = 0.3  # m: a depth step across the footprint this large is an edge
 SWEEP_GROUPS = 16  # beams cast together from one pose of a moving sweep, at least ...
 SWEEP_GROUP_SECONDS = 0.002  # ... and as many more as keep a group within this long
 PERSON_RADIUS = 0.25  # m
+PERSON_SPEED = 1.0  # m/s
+PERSON_OFFSET = 0.5  # m at most beside the route's centre line
 # Scans per second a survey takes: real 2-D scanners turn at 5–75 Hz; below, a route is a few
 # scans; above, the log's size (every scan kept in memory) grows without use.
 RATE_HZ = (0.1, 1000.0)
-PERSON_SPEED = 1.0  # m/s
-PERSON_OFFSET = 0.5  # m at most beside the route's centre line
 # A robot as real logs show it (MIT-CSAIL): odometry read about once a second into a log of
 # its own, stale between readings; turns up to ~2 rad/s; a SICK's 0.5° interlaced sweep; a
 # few millimetres of per-beam bias, mixed pixels at edges, people passing.

@@ -130,6 +130,8 @@ def rotation_matrix(q) -> np.ndarray:
 # ---------------------------------------------------------------------- the mount
 # A quaternion's norm may differ from 1 by this (rounding); beyond, it is not a rotation.
 UNIT_QUATERNION = 1e-3
+
+
 @dataclass
 class Mount:
     """The laser on the robot: its pose in the base frame, and whether it is mounted upside
