@@ -452,8 +452,8 @@ class AgreementConfig(Section):
                              "earlier one agrees", level=EXPERT)
     nodes: int = _setting(3, "nodes back the agreeing loop may come from", ge=1, level=EXPERT)
     max_given_up: int = _setting(
-        3, "kept loops two agreeing ones the graph cannot absorb may give up (0: none)", ge=0,
-        level=EXPERT)
+        3, "kept loops a group of agreeing ones the graph cannot absorb may give up (0: none)",
+        ge=0, level=EXPERT)
 
 
 @dataclass(frozen=True)

@@ -22,9 +22,19 @@ def older_config_names(config: dict) -> dict:
     return nested_tables(flat)
 
 
+def as_version_8(state: dict) -> dict:
+    """A runtime's state as version 8 laid it out: one loop remembered as refused for its own
+    error, the newest of today's group."""
+    old = copy.deepcopy(state)
+    if "slam" in old:
+        be = old["slam"]["back_end"]
+        be["strained"], be["strained_info"] = be["strained"][0], be["strained_info"][0]
+    return old
+
+
 def as_version_7(state: dict) -> dict:
     """A runtime's state as version 7 laid it out: its configuration in the flat names."""
-    old = copy.deepcopy(state)
+    old = as_version_8(state)
     if "config" in old:
         old["config"] = older_config_names(old["config"])
     return old

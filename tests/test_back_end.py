@@ -4,6 +4,7 @@ submap, the memory of failed candidates, loop verification and the memory of ver
 import numpy as np
 import pytest
 
+from swarmslam.runtime.back_end.loop_closure import GROUP
 from swarmslam.runtime.config import SlamConfig, override
 from swarmslam.runtime.matching.scan import PointScan
 from swarmslam.runtime.pose import between, compose
@@ -173,7 +174,7 @@ def test_two_loops_that_agree_give_up_the_kept_loops_they_contradict(given_up):
     bent, edges = abs(g.poses[55, 1]), g.n_edges
     assert bent > 2.0  # the drift the wrong loops hold
     assert not back.close_loop(4, 55, z)  # right, refused: the graph cannot absorb it
-    assert back.closure.memory.strained[1] == 55 and loops.counts.rejected_consistency == 1
+    assert back.closure.memory.strained[0, 1] == 55 and loops.counts.rejected_consistency == 1
     kept = back.close_loop(5, 56, z)  # the next agrees
     assert kept is (given_up > 0) and loops.counts.agreed == 0
     wrong = {(0, 50), (1, 51), (2, 52)}
@@ -186,3 +187,53 @@ def test_two_loops_that_agree_give_up_the_kept_loops_they_contradict(given_up):
         assert restored.back_end.loops.counts.given_up == 3 and restored.graph.n_edges == g.n_edges
     else:
         assert held == wrong and g.n_edges == edges and abs(g.poses[55, 1]) == bent
+
+
+def test_a_group_of_agreeing_loops_is_judged_by_its_joint_error():
+    """The loops refused for their own error are remembered newest first, the oldest forgotten
+    past ``GROUP − 1``; a new one is tried with the rows it agrees with, and the group is kept
+    only when its joint ``eᵀΩe`` passes χ² at 3 degrees of freedom a loop (at ``total_gate``'s
+    level): with that gate made impossible, the agreeing pair of the scene above is refused
+    and the wrong loops stay."""
+    config = override(SlamConfig(), {"loop_closure.agreement.max_given_up": 3})
+    slam, back = chain_with_wrong_loops(config)
+    g, memory, trial = slam.graph, back.closure.memory, back.closure
+    gate = trial.joint_gate
+    assert gate[1] == pytest.approx(config.loop_closure.total_gate, rel=1e-3)
+    assert np.all(np.diff(gate[1:]) > 0) and gate.shape == (GROUP + 1,)
+    z = np.array([51 * 0.5, 0.0, 0.0])
+    for k in range(GROUP + 1):  # the ring keeps the newest GROUP − 1, newest first
+        memory.strain(k, 40 + k, z, np.eye(3) * k)
+    assert [int(v) for v in memory.strained[:, 1]] == [40 + GROUP - k for k in range(GROUP - 1)]
+    assert memory.strained_info[0, 0, 0] == GROUP
+    memory.forget_strained()
+    assert len(memory.agreeing(g, 5, 56, z)) == 0
+    assert not back.close_loop(4, 55, z)
+    assert list(memory.agreeing(g, 5, 56, z)) == [0]  # the loop just refused agrees
+    assert len(memory.agreeing(g, 5, 56, z + [0.5, 0.0, 0.0])) == 0  # half a metre off does not
+    trial.joint_gate[:] = 1.0
+    edges = g.n_edges
+    assert not back.close_loop(5, 56, z)
+    assert g.n_edges == edges and back.loops.counts.given_up == 0
+    assert int(memory.strained[0, 1]) == 56 and int(memory.strained[1, 1]) == 55
+
+
+def test_the_group_memory_is_saved_and_refused_when_it_names_no_node():
+    config = SlamConfig()
+    slam, back = chain_with_wrong_loops(config)
+    memory = back.closure.memory
+    memory.strain(4, 55, np.array([1.0, 2.0, 0.1]), np.eye(3))
+    memory.strain(5, 56, np.array([1.5, 2.0, 0.1]), 2 * np.eye(3))
+    restored = GraphSlam(config, seed=0)
+    restored.restore(slam.state())
+    again = restored.back_end.closure.memory
+    assert np.array_equal(again.strained, memory.strained)
+    assert np.array_equal(again.strained_info, memory.strained_info)
+    state = memory.state()
+    state["strained"][1, 1] = slam.graph.n_nodes  # a node the graph does not hold
+    with pytest.raises(ValueError, match="do not exist"):
+        again.restore(state, slam.graph.n_nodes)
+    state = memory.state()
+    state["strained"] = state["strained"][0]  # version 8's single row, unmigrated
+    with pytest.raises(ValueError, match="rows"):
+        again.restore(state, slam.graph.n_nodes)

@@ -35,7 +35,7 @@ from swarmslam.runtime.realtime.session import SessionError, read_session, write
 from swarmslam.runtime.slam import GraphSlam
 from swarmslam.runtime.realtime.warm_up import LoopDrive
 
-from old_sessions import as_early_version_6, as_version_6, as_version_7
+from old_sessions import as_early_version_6, as_version_6, as_version_7, as_version_8
 from source_layout import copy_installed_layout
 
 # A small swarm budget keeps the long runs quick; the code paths are the same at any budget.
@@ -435,6 +435,29 @@ def test_a_version_7_session_with_the_flat_configuration_resumes_as_it_was(saved
     monkeypatch.undo()
     resumed = SlamRuntime.resume(path)
     assert resumed.config == changed
+    assert np.array_equal(resumed.slam.node_poses(), runtime.slam.node_poses())
+
+
+def test_a_version_8_session_remembers_its_one_strained_loop_as_the_newest_of_a_group(
+        saved, tmp_path, monkeypatch):
+    """Version 8 remembered one loop refused for its own error; the migration makes it the
+    newest row of the group's memory, the others empty, and the run resumes on the same map."""
+    runtime, _ = saved
+    state = runtime.state()
+    be = state["slam"]["back_end"]
+    be["strained"][0] = [3.0, 7.0, 0.5, -0.25, 0.125]
+    be["strained_info"][0] = 4.0 * np.eye(3)
+    old = as_version_8(state)
+    assert np.shape(old["slam"]["back_end"]["strained"]) == (5,)
+    path = tmp_path / "v8.session"
+    monkeypatch.setattr(session, "VERSION", 8)
+    write_session(path, old)
+    monkeypatch.undo()
+    resumed = SlamRuntime.resume(path)
+    memory = resumed.slam.back_end.closure.memory
+    assert list(memory.strained[0]) == [3.0, 7.0, 0.5, -0.25, 0.125]
+    assert np.all(memory.strained[1:, :2] == -1.0)
+    assert np.array_equal(memory.strained_info[0], 4.0 * np.eye(3))
     assert np.array_equal(resumed.slam.node_poses(), runtime.slam.node_poses())
 
 

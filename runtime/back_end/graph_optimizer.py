@@ -35,12 +35,13 @@ from swarmslam.runtime.back_end.sparse_ldl import SparseLDL, permute_triplets
 @njit(cache=True)
 def dcs_weights(chi2, kind, phi, exempt, out):
     """Dynamic covariance scaling (Agarwal et al. 2013) of every loop edge (``kind`` LOOP) but
-    ``exempt``, from each edge's ``eᵀΩe`` (``chi2``): ``out[k] = s²``,
+    those from ``exempt`` on (none when it is negative: loops on trial are the last edges),
+    from each edge's ``eᵀΩe`` (``chi2``): ``out[k] = s²``,
     ``s = min(1, 2Φ/(Φ + eᵀΩe))``; 1 for the others. An edge that contradicts the rest of the
     graph loses its pull instead of bending the map (docs/method.md §4.3)."""
     for k in range(chi2.shape[0]):
         out[k] = 1.0
-        if kind[k] == LOOP and k != exempt and chi2[k] > phi:
+        if kind[k] == LOOP and (exempt < 0 or k < exempt) and chi2[k] > phi:
             s = 2.0 * phi / (phi + chi2[k])
             out[k] = s * s
 
@@ -331,7 +332,8 @@ class GaussNewton:
 
     def optimize(self, exempt: int = -1, fallback: bool = True) -> OptimizeReport:
         """Gauss–Newton until the relative decrease of χ² is below ``tolerance``; edge
-        ``exempt`` keeps its full weight under the robust kernel (a loop closure on trial).
+        ``exempt`` and those after it keep their full weight under the robust kernel (loop
+        closures on trial).
         If it has not converged after ``max_iterations``, Levenberg–Marquardt restarts from
         the first poses — or, without ``fallback``, the poses are restored and the report says
         ``converged=False`` (a closure on trial: an LM restart there takes hundreds of

@@ -39,6 +39,10 @@ AGREEMENT_DISTANCE = 0.1
 AGREEMENT_ANGLE = 0.02
 
 CHI2_2D_95 = 5.991
+# Loops refused for their own error judged together at most: the newest and those before it
+# that it agrees with. Consecutive matches that agree are the evidence one match cannot give;
+# two were too few to outweigh a long drift's chain, and each more adds an edge to one trial.
+GROUP = 5
 
 
 @njit(cache=True)
@@ -208,22 +212,25 @@ class LoopCloser:
 
 class VerdictMemory:
     """What step 4 remembers of the loops it refused (docs/method.md §5, step 4): the last loop
-    refused for the rise of the total alone (its own error passed), and the last refused for
-    its own error (the graph could not absorb it) with its information. Each is its candidate,
-    its node and its measurement, the candidate −1 when there is none. A later loop that agrees
-    with the first is judged by its own error; one that agrees with the second may take the
-    place of the kept loops the two strain most."""
+    refused for the rise of the total alone (its own error passed), and the last ``GROUP − 1``
+    refused for their own error (the graph could not absorb them), newest first, each with its
+    information. Each is its candidate, its node and its measurement, the candidate −1 when
+    there is none. A later loop that agrees with the first is judged by its own error; one
+    that agrees with some of the others is tried with them as a group, which may take the
+    place of the kept loops the group strains most."""
 
     def __init__(self, config: LoopClosureConfig):
         self.config = config
         self.rise_refused = np.array([-1.0, -1.0, 0.0, 0.0, 0.0])
-        self.strained = np.array([-1.0, -1.0, 0.0, 0.0, 0.0])
-        self.strained_info = np.zeros((3, 3))
+        self.strained = np.zeros((GROUP - 1, 5))
+        self.strained[:, :2] = -1.0
+        self.strained_info = np.zeros((GROUP - 1, 3, 3))
+        self._agreeing = np.zeros(GROUP - 1, np.int64)
 
     def agrees(self, refused, graph, candidate: int, node: int, z) -> bool:
         """Whether the loop ``candidate`` → ``node`` (measurement ``z``) agrees with one
-        refused before (``refused``: :attr:`rise_refused` or :attr:`strained`): made from a
-        node at most ``agreement.nodes`` before ``node``, and placing ``node`` within
+        refused before (``refused``: :attr:`rise_refused` or a row of :attr:`strained`): made
+        from a node at most ``agreement.nodes`` before ``node``, and placing ``node`` within
         ``AGREEMENT_DISTANCE`` and ``AGREEMENT_ANGLE`` of where this one does, through the
         graph's short chains between the two nodes and between the two candidates. Two scans
         matched apart that put the robot in the same place of the old map are evidence that
@@ -237,6 +244,27 @@ class VerdictMemory:
         here = compose(p[candidate], z)
         return bool(math.hypot(here[0] - there[0], here[1] - there[1]) <= AGREEMENT_DISTANCE
                     and abs(wrap_angle(here[2] - there[2])) <= AGREEMENT_ANGLE)
+
+    def agreeing(self, graph, candidate: int, node: int, z) -> np.ndarray:
+        """The rows of :attr:`strained` the loop ``candidate`` → ``node`` agrees with
+        (:meth:`agrees`), newest first: the group it is tried with."""
+        count = 0
+        for row in range(GROUP - 1):
+            if self.agrees(self.strained[row], graph, candidate, node, z):
+                self._agreeing[count] = row
+                count += 1
+        return self._agreeing[:count]
+
+    def strain(self, candidate: int, node: int, z, info) -> None:
+        """Remember a loop refused for its own error, the oldest remembered forgotten."""
+        for row in range(GROUP - 2, 0, -1):  # row by row: a shifted slice would copy
+            self.strained[row] = self.strained[row - 1]
+            self.strained_info[row] = self.strained_info[row - 1]
+        self.remember(self.strained[0], candidate, node, z)
+        self.strained_info[0] = info
+
+    def forget_strained(self) -> None:
+        self.strained[:, :2] = -1.0
 
     @staticmethod
     def remember(refused, candidate: int, node: int, z) -> None:
@@ -254,10 +282,11 @@ class VerdictMemory:
             raise ValueError("the loop refused for its rise refers to nodes that do not exist")
         strained = np.asarray(state["strained"], np.float64)
         info = np.asarray(state["strained_info"], np.float64)
-        if (strained.shape != (5,) or info.shape != (3, 3) or not np.all(np.isfinite(strained))
-                or not np.all(np.isfinite(info)) or not -1 <= strained[0] < n_nodes
-                or not -1 <= strained[1] < n_nodes):
-            raise ValueError("the loop refused for its own error refers to nodes that do not "
+        if strained.shape != (GROUP - 1, 5) or info.shape != (GROUP - 1, 3, 3):
+            raise ValueError(f"the loops refused for their own error are not {GROUP - 1} rows")
+        if (not np.all(np.isfinite(strained)) or not np.all(np.isfinite(info))
+                or not np.all((-1 <= strained[:, :2]) & (strained[:, :2] < n_nodes))):
+            raise ValueError("the loops refused for their own error refer to nodes that do not "
                              "exist")
         self.rise_refused[:] = refused
         self.strained[:], self.strained_info[:] = strained, info

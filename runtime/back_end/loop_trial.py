@@ -7,22 +7,24 @@ The graph is copied with the edge added and optimised one Gauss–Newton step pe
 front end adding nodes to the graph itself meanwhile. A consistent result is written back, with
 the nodes added meanwhile carried along by their edges; otherwise the graph is left as it was,
 and the refusal is remembered (:class:`VerdictMemory`): a later loop that agrees with it may be
-kept past the test that refused it, or, with it, in place of the kept loops the two strain most.
+kept past the test that refused it, or, with the loops refused before that it agrees with, as a
+group judged by its joint error, in place of the kept loops the group strains most.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.stats import chi2 as chi_squared
 
 from swarmslam.runtime.config import SlamConfig
 from swarmslam.runtime.back_end.graph_optimizer import GaussNewton
-from swarmslam.runtime.back_end.loop_closure import LoopCloser, VerdictMemory
+from swarmslam.runtime.back_end.loop_closure import GROUP, LoopCloser, VerdictMemory
 from swarmslam.runtime.pose import between, compose
 from swarmslam.runtime.pose_graph import LOOP, PoseGraph
 from swarmslam.runtime.back_end.sparse_ldl import FactorCapacityError
 
 EDGES_FULL_STATUS = "capacity reached: no more loop closures"
-# A kept loop is given up for two that agree only when they raise its eᵀΩe by more than this.
+# A kept loop is given up for a group that agrees only when it raises its eᵀΩe by more than this.
 MIN_STRAIN = 1.0
 
 
@@ -35,6 +37,10 @@ class ClosureTrial:
         self._saved_poses = np.zeros((graph.max_nodes, 3))
         self._chi2_before = np.zeros(graph.max_edges)
         self._given_up = np.zeros(max(config.loop_closure.agreement.max_given_up, 1), np.int64)
+        # χ² at 3·k degrees of freedom, at the level of a consistent loop's total_gate (χ²₃),
+        # for a group of k loops
+        level = chi_squared.cdf(config.loop_closure.total_gate, 3)
+        self.joint_gate = np.array([chi_squared.ppf(level, 3 * k) for k in range(GROUP + 1)])
         self.status = "ok"
 
     def edges_full(self) -> bool:
@@ -75,13 +81,14 @@ class ClosureTrial:
             # (the graph's own poses: the trial moved none, the front end only adds nodes)
             if not (absorbed and not widened
                     and memory.agrees(memory.rise_refused, g, candidate, node, z)):
-                if settled and not absorbed and not widened:
-                    if memory.agrees(memory.strained, g, candidate, node, z):
-                        kept = yield from self._give_up_steps(candidate, node, z, info)
+                if settled and not absorbed:
+                    group = memory.agreeing(g, candidate, node, z)
+                    if len(group):
+                        kept = yield from self._group_steps(group, candidate, node, z, info,
+                                                            widened)
                         if kept >= 0:
                             return kept
-                    memory.remember(memory.strained, candidate, node, z)
-                    memory.strained_info[:] = info
+                    memory.strain(candidate, node, z, info)
                 loops.counts.rejected_consistency += 1
                 if absorbed and not widened:  # refused for the rise alone
                     memory.remember(memory.rise_refused, candidate, node, z)
@@ -95,21 +102,24 @@ class ClosureTrial:
         loops.counts.accepted += 1
         return candidate
 
-    def _give_up_steps(self, candidate: int, node: int, z, info):
-        """Two loops the graph could not absorb, the last one refused so
-        (:attr:`VerdictMemory.strained`) and ``candidate`` → ``node`` which agrees with it,
-        tried together (CLOSE slices, a generator returning the old end, −1 unless both were
-        kept): the kept loop whose error the two raise the most (by more than ``MIN_STRAIN``)
-        is given up and the trial optimised again, up to ``agreement.max_given_up`` loops, until the
-        graph absorbs both and raises no kept loop's error by more than ``chi2_gate``; both are
-        kept when the rest of the graph's total rose by at most a consistent constraint's
-        ``total_gate`` each (two the graph absorbs with none given up are refused, as each was
-        alone). One wrong closure kept, a corner's L matched onto the other L of a corridor's
-        corner, otherwise refuses every right closure of the place after it: the map holds the
-        corridor twice."""
+    def _group_steps(self, group, candidate: int, node: int, z, info, widened: bool):
+        """The loop ``candidate`` → ``node`` the graph could not absorb, tried with the loops
+        refused so before that it agrees with (``group``: rows of
+        :attr:`VerdictMemory.strained`; CLOSE slices, a generator returning the old end, −1
+        unless all were kept). The group is kept when its joint error passes χ² at its degrees
+        of freedom (3 a loop) at ``total_gate``'s level: consistent evidence from several
+        matches in a row that no single one gives. Until it does, the kept loop whose error the
+        group raises the most (by more than ``MIN_STRAIN``) is given up and the trial optimised
+        again, up to ``agreement.max_given_up`` loops, and no kept loop's error may rise by more
+        than ``chi2_gate``; the rest of the graph's total may rise by at most a consistent
+        constraint's ``total_gate`` a loop, unless the newest is a wide proposal (judged, as
+        one alone is, without the rise). One wrong closure kept, a corner's L matched onto the
+        other L of a corridor's corner, otherwise refuses every right closure of the place
+        after it: the map holds the corridor twice."""
         g, trial, loops, memory = self.graph, self.trial, self.loops, self.memory
         c, most = loops.config, loops.config.agreement.max_given_up
-        if most <= 0 or g.n_edges + 2 > g.max_edges:
+        size = len(group) + 1
+        if size < 2 or g.n_edges + size > g.max_edges:
             return -1
         n, m = g.n_nodes, g.n_edges
         before = self._chi2_before[:m]
@@ -117,13 +127,11 @@ class ClosureTrial:
         total_before = float(np.sum(before))
         trial.copy_from(g)
         trial.rescale(trial.scale_target)
-        old = memory.strained
-        first = trial.add_edge(int(old[0]), int(old[1]), old[2:], memory.strained_info, LOOP)
-        edge = trial.add_edge(candidate, node, z, info, LOOP)
+        self._add_group(trial, group, candidate, node, z, info)
         count = 0
         while True:
-            try:
-                settled = (yield from self.optimizer.steps(exempt=edge)).converged
+            try:  # the whole group exempt from the robust kernel: judged at its full weight
+                settled = (yield from self.optimizer.steps(exempt=m)).converged
             except FactorCapacityError as exc:
                 self.status = f"capacity reached: {exc}"
                 return -1
@@ -131,12 +139,16 @@ class ClosureTrial:
                 return -1
             chi2 = trial.edge_chi2()
             strained, strain = -1, MIN_STRAIN
-            for k in range(m):  # the kept loop the two strain most (one given up has no Ω)
+            for k in range(m):  # the kept loop the group strains most (one given up has no Ω)
                 if (trial.kind[k] == LOOP and trial.info[k, 2, 2] > 0.0
                         and chi2[k] - before[k] > strain):
                     strained, strain = k, float(chi2[k] - before[k])
-            if (chi2[first] <= c.chi2_gate and chi2[edge] <= c.chi2_gate
-                    and (strained < 0 or strain <= c.chi2_gate)):
+            rise = float(np.sum(chi2)) - total_before
+            for k in self._given_up[:count]:
+                rise += float(before[k])
+            if (float(np.sum(chi2[m:m + size])) <= self.joint_gate[size]
+                    and (strained < 0 or strain <= c.chi2_gate)
+                    and (widened or rise <= size * c.total_gate)):
                 break
             if strained < 0 or count == most:
                 return -1
@@ -144,20 +156,25 @@ class ClosureTrial:
             self._given_up[count] = strained
             count += 1
         given = self._given_up[:count]
-        rest = total_before
-        for k in given:
-            rest -= float(before[k])
-        if count == 0 or trial.chi2() - rest > 2.0 * c.total_gate or self.edges_full():
+        if self.edges_full():
             return -1
         self._take_trial_poses(n, m)
         g.remove_edges(given)
-        g.add_edge(int(old[0]), int(old[1]), old[2:], memory.strained_info, LOOP)
-        g.add_edge(candidate, node, z, info, LOOP)
-        loops.counts.accepted += 2
+        self._add_group(g, group, candidate, node, z, info)
+        loops.counts.accepted += size
         loops.counts.given_up += count
         memory.rise_refused[:2] = -1.0
-        memory.strained[:2] = -1.0
+        memory.forget_strained()
         return candidate
+
+    def _add_group(self, graph: PoseGraph, group, candidate: int, node: int, z, info) -> None:
+        """The group's loop edges added to ``graph``: the remembered ones, oldest first, then
+        the newest."""
+        strained, strained_info = self.memory.strained, self.memory.strained_info
+        for row in group[::-1]:
+            graph.add_edge(int(strained[row, 0]), int(strained[row, 1]), strained[row, 2:],
+                           strained_info[row], LOOP)
+        graph.add_edge(candidate, node, z, info, LOOP)
 
     def _take_trial_poses(self, n: int, m: int) -> None:
         """The trial's optimised poses for the graph's first ``n`` nodes; each node the front

@@ -29,17 +29,19 @@ from pathlib import Path
 
 import numpy as np
 
+from swarmslam.runtime.back_end.loop_closure import GROUP
 from swarmslam.runtime.config import upgrade_names
 from swarmslam.runtime.front_end.odometry_scale import BINS as SCALE_BINS
 from swarmslam.runtime.realtime.writers import write_bytes_atomic
 
 FORMAT = "swarmslam-session"
-# 8: the configuration nested by component; 7: every component's state complete, its tallies saved whole; 6: the swarm's stall rule (its
-# run scalars grew); 5: the wide search's recent corrections; 4: the back end's wide loop
-# search; 3: loop edges carry their own information. A component whose state changes raises
-# the version and adds the migration from the one before (MIGRATIONS); restore() then reads
-# required keys only.
-VERSION = 8
+# 9: the loops refused for their own error remembered as a group; 8: the configuration nested
+# by component; 7: every component's state complete, its tallies saved whole; 6: the swarm's
+# stall rule (its run scalars grew); 5: the wide search's recent corrections; 4: the back end's
+# wide loop search; 3: loop edges carry their own information. A component whose state changes
+# raises the version and adds the migration from the one before (MIGRATIONS); restore() then
+# reads required keys only.
+VERSION = 9
 ARRAY = "__array__"  # marks, in the meta, a leaf stored as an archive entry
 
 
@@ -106,7 +108,18 @@ def _from_7(state: dict) -> dict:
     return state
 
 
-MIGRATIONS = {6: _from_6, 7: _from_7}  # version → the function that brings its state to the next
+def _from_8(state: dict) -> dict:
+    """Version 8 → 9. The one loop remembered as refused for its own error becomes the newest
+    row of the group's memory, the rows before it empty."""
+    be = state["slam"]["back_end"]
+    strained, info = np.zeros((GROUP - 1, 5)), np.zeros((GROUP - 1, 3, 3))
+    strained[:, :2] = -1.0
+    strained[0], info[0] = be["strained"], be["strained_info"]
+    be["strained"], be["strained_info"] = strained, info
+    return state
+
+
+MIGRATIONS = {6: _from_6, 7: _from_7, 8: _from_8}  # version → the function that brings its state to the next
 
 
 def migrate(state: dict, version: int) -> dict:
