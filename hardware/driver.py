@@ -268,13 +268,16 @@ class RPLidar:
 
     def start(self, mode="typical") -> None:
         """Motor on, scan started in ``mode`` (see :meth:`resolve_mode`), the reader thread
-        running."""
+        running (it reopens the port first if the port vanished since it answered)."""
         if self._thread is not None:
             raise LidarError("already scanning")
         mode = self.resolve_mode(mode)
         self.scan_mode = mode
-        self.start_motor()
-        parser = self._start_scan(mode)
+        try:
+            self.start_motor()
+            parser = self._start_scan(mode)
+        except PORT_ERRORS:  # the port vanished since it answered: the reader reconnects
+            parser = None
         self._stop.clear()
         self._thread = threading.Thread(target=self._read_loop, args=(mode, parser),
                                         name="rplidar-reader", daemon=True)
@@ -320,6 +323,8 @@ class RPLidar:
         return parser
 
     def _read_loop(self, mode: str, parser) -> None:
+        if parser is None:
+            parser = self._reconnect(mode)
         last_data = time.monotonic()
         while not self._stop.is_set():
             try:

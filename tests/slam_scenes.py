@@ -202,7 +202,17 @@ def tracked_in_a_room():
     """A SLAM that tracked twelve scans of a room's loop with exact odometry: its front end,
     the last scan and that scan's pose in its keyframe's frame."""
     path = loop_path(80)[:12]
-    world = room_world(0, size=(12.0, 9.0), boxes=14, walls=0, keep_clear=path)
+    return _tracked(room_world(0, size=(12.0, 9.0), boxes=14, walls=0, keep_clear=path), path)
+
+
+def tracked_in_a_corridor():
+    """:func:`tracked_in_a_room` down a plain corridor 2 m wide, 0.1 m a scan: every pose
+    along it fits a scan as well as another."""
+    world = np.array([[-20.0, y, 40.0, y] for y in (-1.0, 1.0)])
+    return _tracked(world, np.array([[0.1 * k, 0.0, 0.0] for k in range(12)]))
+
+
+def _tracked(world, path):
     slam = GraphSlam(SlamConfig(), seed=0)
     scan = PointScan(len(ANGLES))
     for k in range(len(path)):

@@ -180,6 +180,25 @@ def test_a_vanished_port_is_reopened_by_name(emulator_factory, tmp_path):
     assert report["reconnects"] >= 1
 
 
+def test_a_port_that_vanishes_before_the_scan_starts_is_reopened_too(emulator_factory,
+                                                                      tmp_path):
+    """The port answers, then vanishes before the scan is started (a warm-up longer than the
+    port lasted): start() does not fail; the reader reopens it and scans."""
+    link = tmp_path / "rplidar"
+    emu = emulator_factory("a1", Faults(vanish_after=0.3, vanish_for=0.8), link=link)
+    scans = Scans()
+    with RPLidar(str(link), "a1", on_scan=scans, timeout=0.5, retry=0.1) as lidar:
+        deadline = time.monotonic() + 10
+        while emu.stats["vanished"] == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        lidar.start("express")
+        scans.wait(5, timeout=15)
+        lidar.stop()
+        report = lidar.report()
+    assert emu.stats["vanished"] == 1 and len(scans.items) >= 5
+    assert report["reconnects"] >= 1
+
+
 def test_faults_parse_and_refuse_unknown_ones():
     f = Faults.parse("garbage=0.01, corrupt=0.02, stall=10:2, vanish=30")
     assert (f.garbage, f.corrupt, f.stall_every, f.stall_for, f.vanish_after, f.vanish_for) == \

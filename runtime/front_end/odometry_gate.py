@@ -34,6 +34,13 @@ OVERRULE_DISTANCE = 0.15
 # the points on the previous scan's surfaces: the previous scan vouches for the prediction
 # where the two overlap.
 PREVIOUS_SCAN_FIT = 0.75
+# A match that moves a new reading's position alone is taken for a slide along a corridor only
+# while odometry's prediction fits within this share of the points it fits (both counted within
+# OVERRULE_DISTANCE): a slide leaves the prediction fitting as the corridor does, and a match
+# fitting clearly better says odometry's position is what errs (a wheel reading that lost its
+# sign as the robot backed up). Half of it lets slides in along long corridors; twice it
+# refuses most of the right matches.
+SLIDE_GAIN = 0.1
 # rad, σ of odometry's heading over a step (plus the gate's heading share of its turn): the
 # heading prior's unit.
 HEADING_SIGMA = math.radians(1.0)
@@ -209,26 +216,28 @@ class OdometryGate:
         its search box, fits, and fits clearly better than the prediction does
         (:func:`scans_overrule`), unless it moves a new reading's position alone, its heading
         within the gate's fixed part, from a prediction that itself tracks (fits
-        ``min_track_inliers``): that match may have slid along a corridor, and odometry's
-        position errs little between scans unless its heading does; a prediction that would
-        count as lost is no place to slide from. A ``stale`` reading is never held to more than
-        a new one: a match the plain gain refuses is judged as against a new reading (a turn
-        started facing a near wall: the prediction fits nearly every point, so no fixed gain
-        can be reached)."""
+        ``min_track_inliers``) and fits nearly as well (within ``SLIDE_GAIN``): that match may
+        have slid along a corridor, and odometry's position errs little between scans unless
+        its heading does; a prediction that would count as lost is no place to slide from, and
+        one the scans fit clearly worse is no corridor's. A ``stale`` reading is never held to
+        more than a new one: a match the plain gain refuses is judged as against a new reading
+        (a turn started facing a near wall: the prediction fits nearly every point, so no fixed
+        gain can be reached)."""
         c = self.config
         if not inside or fit < c.min_track_inliers:
             return False
         if stale and scans_overrule(fit, self.fit(scan, guess), True, c):
             return True
+        # a narrower band than a lost match's tells two poses a few degrees apart
+        fit, fits = (self.fit(scan, p, OVERRULE_DISTANCE) for p in (pose, guess))
         # "alone": the heading within the gate's own part, not its share of the turn: a match
         # turning a fast turn's prediction far is no slide along a corridor, and odometry's
         # position, composed along its heading, is off with it
         if (contradicts_odometry(pose, guess, step, c, heading=False)
                 and abs(float(between(pose, guess)[2])) <= c.odometry_gate.tolerance[1]
-                and self.fit(scan, guess) >= c.min_track_inliers):
+                and self.fit(scan, guess) >= c.min_track_inliers
+                and fit - fits <= SLIDE_GAIN):
             return False
-        # a narrower band than a lost match's tells two poses a few degrees apart
-        fit, fits = (self.fit(scan, p, OVERRULE_DISTANCE) for p in (pose, guess))
         return scans_overrule(fit, fits, False, c)
 
     def heading_prior(self, scan: PointScan, match: MatchResult, predicted: Prediction):

@@ -46,6 +46,10 @@ TRAJECTORY_STATUS = "trajectory capacity reached: poses no longer recorded"
 # The next node edge's information is divided by this after a lost match: σ three times its
 # own, the edge holding what recovery found, not a tracked match.
 WEAK_INFORMATION_FACTOR = 9.0
+# On scans alone, the last motion is continued over at most this many of the intervals it was
+# made in: a scan or two dropped in between are bridged, but past a longer gap (a port that
+# vanished, a stalled driver) the robot's motion is no longer known from its last scans.
+CONTINUED_INTERVALS = 3.0
 
 
 @dataclass
@@ -81,6 +85,7 @@ class FrontEnd:
         self.keyframe = -1
         self.rel = np.zeros(3)  # the current pose in the keyframe's frame
         self.motion = np.zeros(3)  # last motion between scans, for a scan-only prediction
+        self._continued_motion = np.zeros(3)  # it, over the time since the last scan
         # The pose (in the keyframe's frame) of the scan that brought odometry's last new
         # reading: its motion is predicted from there (docs/method.md §6.1).
         self.odometry_rel = np.zeros(3)
@@ -242,7 +247,7 @@ class FrontEnd:
         step, news, first = self.readings.read(odometry, stamp)
         self._note_reading(odometry, step, news, first)
         if step is None:  # scans only, or a reading the inbox dropped
-            base, step, news = self.rel, self.motion, False
+            base, step, news = self.rel, self._continued(stamp - self.last_stamp), False
         elif not news:
             base = self.rel
         else:
@@ -255,6 +260,17 @@ class FrontEnd:
         p.stale = p.odometry and not news  # the same reading as before
         p.interval = stamp - self.last_stamp
         return p, base, news
+
+    def _continued(self, interval: float) -> np.ndarray:
+        """The last motion the scans showed, continued over ``interval`` s (at most
+        ``CONTINUED_INTERVALS`` of the one it was made in) at the rate it was made: after a gap
+        in the scans, or in a burst of scans queued behind one, the same motion per scan would
+        carry the pose away."""
+        if not (self.last_interval > 0 and interval >= 0):  # (NaN: no rate known yet)
+            return self.motion
+        ratio = min(interval / self.last_interval, CONTINUED_INTERVALS)
+        np.multiply(self.motion, ratio, out=self._continued_motion)
+        return self._continued_motion
 
     def _note_reading(self, odometry, step, news, first) -> None:
         """What odometry read at the scan being tracked, for the trajectory."""
