@@ -125,7 +125,7 @@ def run_live(port: str, model: str = "a1", mode: str = "typical", out_dir="swarm
 
     try:
         lidar.start(mode)
-        runtime.run(stop, on_tick=on_tick, autosave=out / "session.npz")
+        runtime.run(stop, on_tick=on_tick, autosave=out / AUTOSAVE)
     except KeyboardInterrupt:
         echo("stopping (Ctrl-C or SIGTERM): saving")
     finally:
@@ -166,12 +166,18 @@ def save_outputs(runtime: SlamRuntime, out: Path, scanner: dict, echo=print) -> 
             runtime.save(stage / "session.npz")
             write_json_atomic(stage / "summary.json", summary)
             wrote = "map.pgm map.yaml map.png trajectory.tum graph.g2o session.npz summary.json"
+    for name in (AUTOSAVE, AUTOSAVE + ".prev"):  # the set holds all of it now
+        (out / name).unlink(missing_ok=True)
     echo(f"wrote {out}/: {wrote}")
     if status != "ok":
         echo(f"status: {status}")
     return summary
 
 
+# The session autosaved while a live run goes on, beside the output set and never in it: the
+# set's own session.npz is the previous run's until this run's set replaces the whole set, and
+# the autosave (what --resume takes after a power cut) is removed once it has.
+AUTOSAVE = "session.autosave.npz"
 NO_SCANS_SECONDS = 5.0  # a scanner silent this long is reported so on the status line
 NO_SCANS_STATUS = "no scans received: nothing mapped (is the scanner on the port the model given?)"
 

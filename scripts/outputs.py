@@ -16,6 +16,7 @@ import hashlib
 import os
 import shutil
 import stat
+import tempfile
 import time
 from pathlib import Path
 
@@ -196,8 +197,12 @@ def check_writable(out_dir) -> None:
         raise ValueError(f"--out {given}: exists and is not a folder")
     existing = next((p for p in (out, *out.parents) if p.exists()), Path("/"))
     needs = existing if existing != out or _in_place(out) else out.parent
-    if not os.access(needs, os.W_OK | os.X_OK):
-        raise ValueError(f"--out {given}: {needs} is not writable")
+    try:  # tried, not asked: os.access says yes to root, and to /proc and /sys
+        probe, name = tempfile.mkstemp(prefix=".swarmslam-probe-", dir=needs)
+        os.close(probe)
+        os.unlink(name)
+    except OSError as exc:
+        raise ValueError(f"--out {given}: {needs} is not writable ({exc.strerror})") from None
 
 
 UNUSABLE_REPORT = "unusable-run.json"  # a run that wrote no set: its report, beside the set

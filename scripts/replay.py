@@ -141,8 +141,11 @@ def input_report(log, runtime: SlamRuntime) -> dict:
     skipped = sum(log.skipped.values())
     refused = runtime.inbox.empty + runtime.inbox.bad_stamps
     total = len(log.lasers) + skipped
-    return {"records_skipped": dict(log.skipped), "scans_refused": refused,
-            "unusable_share": (skipped + refused) / total if total else 1.0}
+    report = {"records_skipped": dict(log.skipped), "scans_refused": refused,
+              "unusable_share": (skipped + refused) / total if total else 1.0}
+    if log.stopped:  # a damaged file: read up to its damage, the rest lost
+        report["read_stopped"] = log.stopped
+    return report
 
 
 MOSTLY_UNUSABLE = 0.5  # a run whose records were more than this share unusable is not ok
@@ -157,7 +160,7 @@ def writes_outputs(metrics: dict) -> bool:
 
 def run_status(status: str, log, runtime: SlamRuntime) -> str:
     """The runtime's status, preceded by what makes the run not ok: most of its input
-    unusable, or no scan used at all."""
+    unusable, no scan used at all, or a damaged file read only up to its damage."""
     report = input_report(log, runtime)
     said = []
     if report["scans_refused"] == len(log.lasers):
@@ -165,6 +168,8 @@ def run_status(status: str, log, runtime: SlamRuntime) -> str:
     elif report["unusable_share"] > MOSTLY_UNUSABLE:
         said.append(f"mostly unusable input: {report['unusable_share']:.0%} of the records "
                     f"skipped or refused")
+    if log.stopped:
+        said.append(f"damaged input, the rest of it lost: {log.stopped}")
     if status != "ok":
         said.append(status)
     return "; ".join(said) if said else "ok"

@@ -142,6 +142,23 @@ def test_a_truncated_bag_keeps_every_scan_before_the_damage_and_says_where(tmp_p
     assert any("damaged" in t and f"{len(log.lasers)} scans" in t for t in told)
 
 
+def test_a_replay_of_a_truncated_bag_says_so_and_is_not_ok(tmp_path):
+    """The scans before the damage are replayed and their outputs written, but the run's
+    status is not ok and metrics.json says where reading stopped."""
+    poses, world = _scans(40)
+    data = _write(tmp_path / "whole.mcap", poses, world).read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) * 6 // 10])
+    out = tmp_path / "run"
+    main(["replay", str(cut), "--out", str(out)])
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["status"].startswith("damaged input") and metrics["read_stopped"]
+    whole = tmp_path / "whole-run"
+    main(["replay", str(tmp_path / "whole.mcap"), "--out", str(whole)])
+    metrics = json.loads((whole / "metrics.json").read_text())
+    assert metrics["status"] == "ok" and "read_stopped" not in metrics
+
+
 def test_rep_117_ranges_are_read_as_no_return(tmp_path):
     path = tmp_path / "rep117.mcap"
     writer = BagWriter(path)

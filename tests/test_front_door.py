@@ -185,3 +185,23 @@ def test_every_python_example_in_the_readme_runs(index, tmp_path):
                           capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.strip()
+
+
+def test_the_robustness_section_names_each_gross_seed_and_the_spread_target(tmp_path):
+    results = tmp_path / "results"
+    results.mkdir()
+    row = {"runs": 10, "eT_scored_median": 0.0503, "eT_scored_worst": 0.0563,
+           "eT_scored_spread": 1.12, "eR_deg_median": 0.505, "eR_deg_worst": 0.520,
+           "eT_global_median": 0.064, "eT_global_worst": 0.066, "gross": []}
+    bent = dict(row, eT_scored_worst=0.176, eT_scored_spread=3.5,
+                gross=[{"seed": 7, "why": ["eT 0.176 m"]}])
+    (results / "robustness.json").write_text(json.dumps(
+        {"benchmark": "robustness", "gross_ratio": 2.0, "gross_eT": 0.1, "seeds": list(range(10)),
+         "summary": {"fr079/raw": row, "intel/every-2nd": bent}}))
+    page = results_page(results)
+    assert ("| FR079 / raw | 10 | 0.0503 / 0.0563 | 1.12 | 0.505 / 0.520 | 0.064 / 0.066 "
+            "| none |") in page
+    assert "| Intel / every-2nd | 10 | 0.0503 / 0.1760 | 3.50 |" in page and "| seed 7 |" in page
+    assert "FR079 / raw: no gross run — **met**" in page
+    assert "Intel / every-2nd: no gross run — **missed**" in page
+    assert "Intel / every-2nd: worst ÷ median eT ≤ 1.25 — **missed**" in page

@@ -298,6 +298,18 @@ def test_an_unwritable_out_is_refused_before_the_run(tmp_path, capsys):
     assert "is not a folder" in capsys.readouterr().err
 
 
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="no /proc on this system")
+def test_an_out_no_file_can_be_made_in_is_refused_before_the_run_even_for_root(tmp_path,
+                                                                               capsys):
+    """Whether a file can be made there is tried, not asked of os.access (which says yes to
+    root, and to /proc): the run is refused before it starts, and /proc is left as it was."""
+    log = tmp_path / "ok.clf"
+    log.write_text("".join(log_lines(8)))
+    assert main(["replay", str(log), "--out", "/proc/swarmslam-run"]) == 2
+    assert "is not writable" in capsys.readouterr().err
+    assert not os.path.exists("/proc/swarmslam-run")
+
+
 # ---------------------------------------------------------------- the simulator
 @pytest.mark.parametrize("option, value", [
     ("map_resolution", 0), ("max_linear", float("nan")), ("crop", 0), ("robot_radius", -1),
@@ -425,9 +437,22 @@ def test_sigterm_saves_and_sigkill_loses_at_most_one_autosave(tmp_path):
         time.sleep(8.0)  # more than two autosaves
         live.kill()  # SIGKILL: no handler runs
         live.wait(timeout=10)
-        assert (killed / "session.npz").exists()
-        resumed = SlamRuntime.resume(killed / "session.npz")
+        assert (killed / "session.autosave.npz").exists()  # beside the set, never in it
+        assert not (killed / "session.npz").exists()
+        resumed = SlamRuntime.resume(killed / "session.autosave.npz")
         assert resumed.slam.n_nodes >= 2
+        # the SIGTERM'd run's set is left as it was by the next run's autosaves, and the
+        # autosave is gone once that run's own set is written
+        before = (tmp_path / "term" / "session.npz").read_bytes()
+        live = _mapping(tmp_path, tmp_path / "term")
+        time.sleep(4.0)
+        assert (tmp_path / "term" / "session.autosave.npz").exists()
+        assert (tmp_path / "term" / "session.npz").read_bytes() == before
+        live.send_signal(signal.SIGTERM)
+        said = live.communicate(timeout=60)[0]
+        assert live.returncode == 0, said
+        assert (tmp_path / "term" / "session.npz").read_bytes() != before
+        assert not (tmp_path / "term" / "session.autosave.npz").exists()
     finally:
         live.kill()
         emu.terminate()

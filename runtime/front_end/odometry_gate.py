@@ -34,12 +34,12 @@ OVERRULE_DISTANCE = 0.15
 # the points on the previous scan's surfaces: the previous scan vouches for the prediction
 # where the two overlap.
 PREVIOUS_SCAN_FIT = 0.75
-# A match that moves a new reading's position alone is taken for a slide along a corridor only
-# while odometry's prediction fits within this share of the points it fits (both counted within
-# OVERRULE_DISTANCE): a slide leaves the prediction fitting as the corridor does, and a match
-# fitting clearly better says odometry's position is what errs (a wheel reading that lost its
-# sign as the robot backed up). Half of it lets slides in along long corridors; twice it
-# refuses most of the right matches.
+# A match that moves a new reading's position alone is taken for a slide along a corridor
+# unless it fits all but this share of its points and odometry's prediction fits this share
+# fewer (within OVERRULE_DISTANCE): a slide fits the corridor's walls but not what ends it, and
+# leaves the prediction fitting as the walls do; a match fitting nearly every point, and
+# clearly better, says odometry's position is what errs (a wheel reading that lost its sign as
+# the robot backed up). Half of it lets slides in; twice it refuses too many right matches.
 SLIDE_GAIN = 0.1
 # rad, σ of odometry's heading over a step (plus the gate's heading share of its turn): the
 # heading prior's unit.
@@ -216,10 +216,11 @@ class OdometryGate:
         its search box, fits, and fits clearly better than the prediction does
         (:func:`scans_overrule`), unless it moves a new reading's position alone, its heading
         within the gate's fixed part, from a prediction that itself tracks (fits
-        ``min_track_inliers``) and fits nearly as well (within ``SLIDE_GAIN``): that match may
-        have slid along a corridor, and odometry's position errs little between scans unless
-        its heading does; a prediction that would count as lost is no place to slide from, and
-        one the scans fit clearly worse is no corridor's. A ``stale`` reading is never held to
+        ``min_track_inliers``), unless the match fits all but ``SLIDE_GAIN`` of the points and
+        the prediction that much fewer: that match may have slid along a corridor, and
+        odometry's position errs little between scans unless its heading does; a prediction
+        that would count as lost is no place to slide from, and one the scans fit clearly worse
+        than a match fitting nearly every point is no corridor's. A ``stale`` reading is never held to
         more than a new one: a match the plain gain refuses is judged as against a new reading
         (a turn started facing a near wall: the prediction fits nearly every point, so no fixed
         gain can be reached)."""
@@ -229,16 +230,16 @@ class OdometryGate:
         if stale and scans_overrule(fit, self.fit(scan, guess), True, c):
             return True
         # a narrower band than a lost match's tells two poses a few degrees apart
-        fit, fits = (self.fit(scan, p, OVERRULE_DISTANCE) for p in (pose, guess))
+        narrow, narrow_guess = (self.fit(scan, p, OVERRULE_DISTANCE) for p in (pose, guess))
         # "alone": the heading within the gate's own part, not its share of the turn: a match
         # turning a fast turn's prediction far is no slide along a corridor, and odometry's
         # position, composed along its heading, is off with it
         if (contradicts_odometry(pose, guess, step, c, heading=False)
                 and abs(float(between(pose, guess)[2])) <= c.odometry_gate.tolerance[1]
                 and self.fit(scan, guess) >= c.min_track_inliers
-                and fit - fits <= SLIDE_GAIN):
+                and (fit < 1.0 - SLIDE_GAIN or narrow - narrow_guess <= SLIDE_GAIN)):
             return False
-        return scans_overrule(fit, fits, False, c)
+        return scans_overrule(narrow, narrow_guess, False, c)
 
     def heading_prior(self, scan: PointScan, match: MatchResult, predicted: Prediction):
         """Of two optima of the scan cost, the one nearer odometry's heading: a ``match``

@@ -22,7 +22,8 @@ from swarmslam.runtime.realtime.writers import write_text_atomic
 
 BEGIN = "<!-- results:begin (swarmslam bench report writes this block) -->"
 END = "<!-- results:end -->"
-LOG_NAMES = {"intel": "Intel", "aces": "ACES3", "clinic": "fr-clinic", "mit": "MIT-CSAIL"}
+LOG_NAMES = {"intel": "Intel", "aces": "ACES3", "clinic": "fr-clinic", "mit": "MIT-CSAIL",
+             "fr079": "FR079"}
 REAL_TIME_TARGET = 30.0  # × real time on one core, every log
 
 
@@ -294,9 +295,37 @@ def sweep(data: dict) -> Section:
                    [("same figures serial and on Ray", bool(data["same_figures"]))])
 
 
+def robustness(data: dict) -> Section:
+    table = _head("log / family", "runs", "eT m median / worst", "worst ÷ median",
+                  "eR ° median / worst", "global eT m median / worst", "gross runs")
+    targets = []
+    for key, s in data["summary"].items():
+        log, family = key.split("/")
+        label = f"{LOG_NAMES.get(log, log)} / {family}"
+        gross = s.get("gross", [])
+        table.append(_row(label, s["runs"],
+                          f"{s['eT_scored_median']:.4f} / {s['eT_scored_worst']:.4f}",
+                          f"{s['eT_scored_spread']:.2f}",
+                          f"{s['eR_deg_median']:.3f} / {s['eR_deg_worst']:.3f}",
+                          f"{s['eT_global_median']:.3f} / {s['eT_global_worst']:.3f}",
+                          ", ".join(f"seed {g['seed']}" for g in gross) or "none"))
+        targets.append((f"{label}: no gross run", not gross))
+        targets.append((f"{label}: worst ÷ median eT ≤ {ROBUST_SPREAD}",
+                        s["eT_scored_spread"] <= ROBUST_SPREAD))
+    seeds = ", ".join(str(v) for v in data.get("seeds", []))
+    table += ["", f"Seeds {seeds}, the defaults; fr-clinic judged by its local relations. "
+                  f"Gross: a global eT or p99 error above {data.get('gross_ratio', 2.0):g}× the "
+                  f"median seed's, or an eT above {data.get('gross_eT', 0.1):g} m "
+                  "(docs/benchmarks.md)."]
+    return Section("robustness", "The map on every seed", "swarmslam bench robustness",
+                   data.get("meta", {}), table, targets)
+
+
+ROBUST_SPREAD = 1.25  # the worst seed's eT at most this many times the median seed's
+
 FORMATTERS = {"slam": slam, "generalization": generalization, "localize": localize,
               "runtime": runtime, "runtime-soak": soak, "env": env, "matcher": matcher,
-              "posegraph": posegraph, "bags": bags, "sweep": sweep}
+              "posegraph": posegraph, "bags": bags, "sweep": sweep, "robustness": robustness}
 
 
 def sections(results_dir) -> list[Section]:
