@@ -108,12 +108,12 @@ class ClosureTrial:
         :attr:`VerdictMemory.strained`; CLOSE slices, a generator returning the old end, −1
         unless all were kept). The group is kept when its joint error passes χ² at its degrees
         of freedom (3 a loop) at ``total_gate``'s level: consistent evidence from several
-        matches in a row that no single one gives. Until it does, the kept loop whose error the
-        group raises the most (by more than ``MIN_STRAIN``) is given up and the trial optimised
-        again, up to ``agreement.max_given_up`` loops, and no kept loop's error may rise by more
-        than ``chi2_gate``; the rest of the graph's total may rise by at most a consistent
-        constraint's ``total_gate`` a loop, unless the newest is a wide proposal (judged, as
-        one alone is, without the rise). One wrong closure kept, a corner's L matched onto the
+        matches in a row that no single one gives. Until it does, and until no kept loop's
+        error rises by more than ``chi2_gate`` and the rest of the graph's total by at most a
+        consistent constraint's ``total_gate`` a loop (unless the newest is a wide proposal,
+        judged, as one alone is, without the rise), the kept loop whose error the group raises
+        the most (by more than ``MIN_STRAIN``) is given up and the trial optimised again, up to
+        ``agreement.max_given_up`` loops. One wrong closure kept, a corner's L matched onto the
         other L of a corridor's corner, otherwise refuses every right closure of the place
         after it: the map holds the corridor twice."""
         g, trial, loops, memory = self.graph, self.trial, self.loops, self.memory

@@ -220,10 +220,10 @@ class OdometryGate:
         the prediction that much fewer: that match may have slid along a corridor, and
         odometry's position errs little between scans unless its heading does; a prediction
         that would count as lost is no place to slide from, and one the scans fit clearly worse
-        than a match fitting nearly every point is no corridor's. A ``stale`` reading is never held to
-        more than a new one: a match the plain gain refuses is judged as against a new reading
-        (a turn started facing a near wall: the prediction fits nearly every point, so no fixed
-        gain can be reached)."""
+        than a match fitting nearly every point is no corridor's. A ``stale`` reading is never
+        held to more than a new one: a match the plain gain refuses is judged as against a new
+        reading (a turn started facing a near wall: the prediction fits nearly every point, so
+        no fixed gain can be reached)."""
         c = self.config
         if not inside or fit < c.min_track_inliers:
             return False
