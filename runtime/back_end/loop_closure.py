@@ -222,10 +222,15 @@ class VerdictMemory:
     def __init__(self, config: LoopClosureConfig):
         self.config = config
         self.rise_refused = np.array([-1.0, -1.0, 0.0, 0.0, 0.0])
-        self.strained = np.zeros((GROUP - 1, 5))
-        self.strained[:, :2] = -1.0
-        self.strained_info = np.zeros((GROUP - 1, 3, 3))
+        self.strained, self.strained_info = self.none_strained()
         self._agreeing = np.zeros(GROUP - 1, np.int64)
+
+    @staticmethod
+    def none_strained() -> tuple[np.ndarray, np.ndarray]:
+        """:attr:`strained` and :attr:`strained_info` remembering no loop."""
+        strained = np.zeros((GROUP - 1, 5))
+        strained[:, :2] = -1.0
+        return strained, np.zeros((GROUP - 1, 3, 3))
 
     def agrees(self, refused, graph, candidate: int, node: int, z) -> bool:
         """Whether the loop ``candidate`` → ``node`` (measurement ``z``) agrees with one

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from swarmslam.runtime.back_end.loop_closure import GROUP
+from swarmslam.runtime.back_end.loop_closure import VerdictMemory
 from swarmslam.runtime.config import upgrade_names
 from swarmslam.runtime.front_end.odometry_scale import BINS as SCALE_BINS
 from swarmslam.runtime.realtime.writers import write_bytes_atomic
@@ -112,8 +112,7 @@ def _from_8(state: dict) -> dict:
     """Version 8 → 9. The one loop remembered as refused for its own error becomes the newest
     row of the group's memory, the rows before it empty."""
     be = state["slam"]["back_end"]
-    strained, info = np.zeros((GROUP - 1, 5)), np.zeros((GROUP - 1, 3, 3))
-    strained[:, :2] = -1.0
+    strained, info = VerdictMemory.none_strained()
     strained[0], info[0] = be["strained"], be["strained_info"]
     be["strained"], be["strained_info"] = strained, info
     return state
