@@ -119,7 +119,7 @@ class ClosureTrial:
         g, trial, loops, memory = self.graph, self.trial, self.loops, self.memory
         c, most = loops.config, loops.config.agreement.max_given_up
         size = len(group) + 1
-        if size < 2 or g.n_edges + size > g.max_edges:
+        if g.n_edges + size > g.max_edges:
             return -1
         n, m = g.n_nodes, g.n_edges
         before = self._chi2_before[:m]

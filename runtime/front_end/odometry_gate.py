@@ -229,15 +229,17 @@ class OdometryGate:
             return False
         if stale and scans_overrule(fit, self.fit(scan, guess), True, c):
             return True
-        # a narrower band than a lost match's tells two poses a few degrees apart
-        narrow, narrow_guess = (self.fit(scan, p, OVERRULE_DISTANCE) for p in (pose, guess))
         # "alone": the heading within the gate's own part, not its share of the turn: a match
         # turning a fast turn's prediction far is no slide along a corridor, and odometry's
         # position, composed along its heading, is off with it
-        if (contradicts_odometry(pose, guess, step, c, heading=False)
-                and abs(float(between(pose, guess)[2])) <= c.odometry_gate.tolerance[1]
-                and self.fit(scan, guess) >= c.min_track_inliers
-                and (fit < 1.0 - SLIDE_GAIN or narrow - narrow_guess <= SLIDE_GAIN)):
+        slide = (contradicts_odometry(pose, guess, step, c, heading=False)
+                 and abs(float(between(pose, guess)[2])) <= c.odometry_gate.tolerance[1]
+                 and self.fit(scan, guess) >= c.min_track_inliers)
+        if slide and fit < 1.0 - SLIDE_GAIN:  # (refused before the narrow band is counted)
+            return False
+        # a narrower band than a lost match's tells two poses a few degrees apart
+        narrow, narrow_guess = (self.fit(scan, p, OVERRULE_DISTANCE) for p in (pose, guess))
+        if slide and narrow - narrow_guess <= SLIDE_GAIN:
             return False
         return scans_overrule(narrow, narrow_guess, False, c)
 

@@ -25,6 +25,7 @@ END = "<!-- results:end -->"
 LOG_NAMES = {"intel": "Intel", "aces": "ACES3", "clinic": "fr-clinic", "mit": "MIT-CSAIL",
              "fr079": "FR079"}
 REAL_TIME_TARGET = 30.0  # × real time on one core, every log
+ROBUST_SPREAD = 1.25  # the worst seed's eT at most this many times the median seed's
 
 
 @dataclass
@@ -319,9 +320,6 @@ def robustness(data: dict) -> Section:
                   "(docs/benchmarks.md)."]
     return Section("robustness", "The map on every seed", "swarmslam bench robustness",
                    data.get("meta", {}), table, targets)
-
-
-ROBUST_SPREAD = 1.25  # the worst seed's eT at most this many times the median seed's
 
 FORMATTERS = {"slam": slam, "generalization": generalization, "localize": localize,
               "runtime": runtime, "runtime-soak": soak, "env": env, "matcher": matcher,
